@@ -1,0 +1,31 @@
+"""What every command-line tool of the project shares: one-line errors and exit codes."""
+
+import argparse
+import sys
+from collections.abc import Callable
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse, but a wrong argument is one line on stderr (exit 2), as every other user mistake."""
+
+    def __init__(self, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
+        super().__init__(**kwargs)
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
+def run_main(prog: str, body: Callable[[], int]) -> int:
+    """Runs ``body``; user mistakes (FdError) and closed pipes become one line and exit 1."""
+    from codec.errors import FdError
+
+    try:
+        return body()
+    except FdError as exc:
+        sys.stderr.write(f"{prog}: {exc}\n")
+    except BrokenPipeError:
+        sys.stderr.write(f"{prog}: the other end of the pipe was closed\n")
+    except KeyboardInterrupt:
+        return 130
+    return 1

@@ -1,0 +1,116 @@
+"""The paper's deformation (section 3.1): jaw rotation plus feature-point stretching.
+
+Per frame the sender gives theta (degrees) and the vectors V2, V3, V8, V9:
+1. the jaw-following points F4, F14, F15 rotate by theta about the hinge axis
+   F12-F13; their displacements are V4, V14, V15;
+2. jaw-region vertices rotate rigidly by the same rotation;
+3. a stretch-region vertex X moves by V = (S1*Vi + S2*Vj + S3*Vk) / (S1+S2+S3),
+   the projection weights of X on its feature triangle: X' = X + V.
+Fixed points (F1, F5, F6, F7, F10, F11, F12, F13) have V = 0. Everything that
+does not depend on the parameters is precomputed, so deform() is a few numpy ops.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from codec.face_model import BaseFace
+from codec.regions import FEATURE_NAMES, RegionMap, build_region_map, feature_positions
+
+PAPER_PARAMS: tuple[str, ...] = (
+    "theta", "v2x", "v2y", "v2z", "v3x", "v3y", "v3z",
+    "v8x", "v8y", "v8z", "v9x", "v9y", "v9z",
+)  # fmt: skip
+FREE = ("F2", "F3", "F8", "F9")  # sent, in PAPER_PARAMS order
+JAW_FOLLOWING = ("F4", "F14", "F15")
+
+
+def rotation_matrix(axis: np.ndarray, theta_deg: float) -> np.ndarray:
+    """(3, 3) right-handed rotation by theta_deg about the unit vector axis (Rodrigues)."""
+    t = np.radians(theta_deg)
+    x, y, z = axis
+    k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + np.sin(t) * k + (1.0 - np.cos(t)) * (k @ k)
+
+
+class Deformer:
+    """Deforms one base face; build once, call deform() per frame."""
+
+    def __init__(self, face: BaseFace) -> None:
+        self.face = face
+        self.regions: RegionMap = build_region_map(face)
+        fpos = feature_positions(face)
+        col = {n: i for i, n in enumerate(FEATURE_NAMES)}
+        f12, f13 = fpos[col["F12"]], fpos[col["F13"]]
+        axis = (f12 - f13) / np.linalg.norm(f12 - f13)
+        origin = 0.5 * (f12 + f13)
+        chin = fpos[col["F4"]] - origin
+        if (rotation_matrix(axis, 1.0) @ chin)[1] > chin[1]:  # positive theta must lower the chin
+            axis = -axis
+        self._origin, self._axis = origin, axis
+        self._col = col
+        self._w = np.ascontiguousarray(self.regions.weights)  # (n, 15)
+        self._fpos = fpos
+        self._jaw_idx = np.flatnonzero(self.regions.jaw)
+        self._jaw_rel = face.vertices[self._jaw_idx] - origin
+        self._base = np.asarray(face.vertices, dtype=np.float64)
+        self._free = [col[n] for n in FREE]
+        self._follow = [col[n] for n in JAW_FOLLOWING]
+
+    @property
+    def hinge_axis(self) -> tuple[np.ndarray, np.ndarray]:
+        """(origin (3,), unit direction (3,)) of the jaw axis through F12 and F13,
+        oriented so that positive theta opens the mouth (the chin moves down)."""
+        return self._origin.copy(), self._axis.copy()
+
+    def rotate_jaw(self, points: np.ndarray, theta_deg: float) -> np.ndarray:
+        """(k, 3) points rotated by theta_deg about the hinge axis."""
+        rot = rotation_matrix(self._axis, theta_deg)
+        return (np.asarray(points, dtype=np.float64) - self._origin) @ rot.T + self._origin
+
+    def feature_vectors(self, params: np.ndarray, f3_with_jaw: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """(15, 3) displacement vectors V1..V15 and the (3, 3) jaw rotation for params (13,).
+
+        Fixed points get 0, the free points their sent vectors, the jaw-following
+        points (and F3 when f3_with_jaw) their displacement under the jaw rotation.
+        """
+        p = np.asarray(params, dtype=np.float64)
+        if p.shape != (len(PAPER_PARAMS),):
+            raise ValueError(f"params must have shape ({len(PAPER_PARAMS)},), got {p.shape}")
+        if not np.isfinite(p).all():
+            raise ValueError("params must be finite")
+        rot = rotation_matrix(self._axis, p[0])
+        vec = np.zeros((len(FEATURE_NAMES), 3))
+        vec[self._free] = p[1:].reshape(4, 3)
+        follow = self._follow + ([self._col["F3"]] if f3_with_jaw else [])
+        pts = self._fpos[follow]
+        vec[follow] = (pts - self._origin) @ rot.T + self._origin - pts
+        return vec, rot
+
+    def deform(self, params: np.ndarray, f3_with_jaw: bool = False) -> np.ndarray:
+        """(468, 3) float64 deformed vertices from params (13,) in PAPER_PARAMS order.
+
+        f3_with_jaw: F3 rotates with the jaw (paper Fig. 7) and v3x..v3z are ignored.
+        """
+        vec, rot = self.feature_vectors(params, f3_with_jaw)
+        out = self._base + self._w @ vec
+        out[self._jaw_idx] = self._jaw_rel @ rot.T + self._origin
+        return out
+
+
+def _preset(theta: float, v2=(0, 0, 0), v3=(0, 0, 0), v8=(0, 0, 0), v9=(0, 0, 0)) -> np.ndarray:
+    return np.array([theta, *v2, *v3, *v8, *v9], dtype=np.float64)
+
+
+PRESETS: dict[str, tuple[np.ndarray, bool]] = {
+    "neutral": (_preset(0.0), False),
+    # Fig. 7: jaw opened 10 degrees, F3 rotated with the jaw, corners tilted.
+    "fig7": (_preset(10.0, v8=(0, -0.02, 0), v9=(0, 0.02, 0)), True),
+    # Fig. 8: lips parted, corners drawn in and back (a rounded mouth).
+    "fig8": (
+        _preset(0.0, v2=(0, 0.04, 0), v3=(0, -0.04, 0), v8=(-0.07, 0, -0.07), v9=(0.07, 0, -0.07)),
+        False,
+    ),
+    # Fig. 9: corners pulled outward, up and forward (a smile).
+    "fig9": (_preset(0.0, v8=(0.04, 0.04, 0.04), v9=(-0.04, 0.04, 0.04)), False),
+}

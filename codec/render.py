@@ -1,0 +1,190 @@
+"""Render a deformed face mesh to an sRGB image with per-pixel (Phong) shading.
+
+Shading happens in linear light: colour = albedo * (ambient + sum of light *
+max(n.l, 0)) + specular * sum of light * max(n.h, 0) ** shininess
+(Blinn-Phong), encoded to sRGB at the end. Lighting is double-sided: the
+interpolated normal is flipped toward the viewer, and nothing is culled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import Camera
+from .raster import rasterize, shade, vertex_normals
+
+
+def srgb_to_linear(values) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] -> linear light, float64, same shape."""
+    v = np.asarray(values, dtype=np.float64)
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(values) -> np.ndarray:
+    """Linear light in [0, 1] -> sRGB-encoded values in [0, 1], float64, same shape."""
+    v = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0)
+    return np.where(v <= 0.0031308, v * 12.92, 1.055 * v ** (1 / 2.4) - 0.055)
+
+
+_DECODE = srgb_to_linear(np.arange(256) / 255.0)
+_ENCODE = np.round(linear_to_srgb(np.arange(65536) / 65535.0) * 255.0).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class Material:
+    """Surface reflectance; albedo is linear RGB in [0, 1] (default: a skin tone)."""
+
+    albedo: tuple[float, float, float] = (0.70, 0.42, 0.32)
+    ambient: float = 0.18
+    specular: float = 0.12
+    shininess: float = 24.0
+
+
+@dataclass(frozen=True)
+class DirectionalLight:
+    """A light at infinity; direction points from the surface toward the light (world)."""
+
+    direction: tuple[float, float, float]
+    color: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    intensity: float = 1.0
+
+
+KEY_LIGHT = DirectionalLight((-0.4, 0.5, 1.0), intensity=0.85)
+FILL_LIGHT = DirectionalLight((0.7, -0.1, 0.5), intensity=0.3)
+
+
+def _finite(value, shape, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.shape != shape or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite with shape {shape}, got {np.shape(value)}")
+    return arr
+
+
+def _lights(lights) -> tuple[np.ndarray, np.ndarray]:
+    """(k, 3) unit directions and (k, 3) colour * intensity, float64."""
+    dirs, rgbs = np.zeros((len(lights), 3)), np.zeros((len(lights), 3))
+    for i, light in enumerate(lights):
+        d = _finite(light.direction, (3,), "light direction")
+        if not np.linalg.norm(d) > 0.0:
+            raise ValueError("light direction must be non-zero")
+        dirs[i] = d / np.linalg.norm(d)
+        rgbs[i] = _finite(light.color, (3,), "light color") * float(light.intensity)
+    return dirs, rgbs
+
+
+class Renderer:
+    """Rasterises one triangle mesh topology, frame after frame.
+
+    faces: (m, 3) int vertex indices; size: (width, height) of the output;
+    uv: (n, 2) texture coordinates in [0, 1] with v up (v = 0 is the bottom
+    row of texture), used with texture: (h, w, 3) uint8 RGB, which replaces
+    the albedo; mouth_faces: (m,) bool marking the mouth interior, drawn dark
+    with a teeth band along its upper edge; supersample: 1, or 2 for 2x2
+    anti-aliasing. Buffers are reused between frames: one instance is not
+    thread-safe.
+    """
+
+    def __init__(self, faces, size=(512, 512), material: Material = Material(),
+                 lights=(KEY_LIGHT, FILL_LIGHT), background=(0, 0, 0), uv=None,
+                 texture=None, mouth_faces=None, supersample: int = 1):
+        faces = np.asarray(faces)
+        if faces.ndim != 2 or faces.shape[1] != 3 or faces.shape[0] == 0 \
+                or not np.issubdtype(faces.dtype, np.integer) or faces.min() < 0:
+            raise ValueError(f"faces must be a non-empty (m, 3) array of non-negative ints, "
+                             f"got {faces.dtype} {faces.shape}")
+        self.faces = np.ascontiguousarray(faces, dtype=np.int32)
+        self._min_vertices = int(faces.max()) + 1
+        width, height = (int(s) for s in size)
+        if width <= 0 or height <= 0 or width > 8192 or height > 8192:
+            raise ValueError(f"size must be (width, height) in 1..8192, got {size}")
+        self.size = (width, height)
+        if supersample not in (1, 2):
+            raise ValueError(f"supersample must be 1 or 2, got {supersample}")
+        self.supersample = supersample
+        self.material = material
+        self._albedo = _finite(material.albedo, (3,), "material albedo")
+        self._params = _finite((material.ambient, material.specular, material.shininess),
+                               (3,), "material ambient/specular/shininess")
+        if material.shininess <= 0.0:
+            raise ValueError(f"material shininess must be positive, got {material.shininess}")
+        self._light_dir, self._light_rgb = _lights(tuple(lights))
+        self._background = self._parse_background(background)
+        self._uv, self._texture = self._parse_texture(uv, texture)
+        mouth = np.zeros(len(self.faces), bool) if mouth_faces is None else np.asarray(mouth_faces)
+        if mouth.shape != (len(self.faces),) or mouth.dtype != bool:
+            raise ValueError(f"mouth_faces must be a bool mask of shape ({len(self.faces)},)")
+        self._mouth = np.ascontiguousarray(mouth)
+        self._mouth_vertices = np.unique(self.faces[mouth])
+        shape = (height * supersample, width * supersample)
+        self._zbuf = np.empty(shape, np.float64)
+        self._tri_id = np.empty(shape, np.int32)
+        self._bary = np.empty(shape + (2,), np.float64)
+        self._no_count = np.zeros((0, 0), np.int32)
+
+    def _parse_background(self, background) -> np.ndarray:
+        width, height = self.size
+        if isinstance(background, np.ndarray) and background.ndim == 3:
+            if background.shape != (height, width, 3) or background.dtype != np.uint8:
+                raise ValueError(f"background image must be ({height}, {width}, 3) uint8, "
+                                 f"got {background.dtype} {background.shape}")
+            return np.ascontiguousarray(background)
+        rgb = np.asarray(background)
+        if rgb.shape != (3,) or not np.all((rgb >= 0) & (rgb <= 255)):
+            raise ValueError(f"background must be an (r, g, b) tuple in 0..255 or an image, "
+                             f"got {background!r}")
+        return np.ascontiguousarray(np.broadcast_to(rgb.astype(np.uint8), (height, width, 3)))
+
+    def _parse_texture(self, uv, texture) -> tuple[np.ndarray, np.ndarray]:
+        if (uv is None) != (texture is None):
+            raise ValueError("uv and texture must be given together")
+        if texture is None:
+            return np.zeros((0, 2)), np.zeros((0, 0, 3), np.float32)
+        uv = np.asarray(uv, dtype=np.float64)
+        if uv.ndim != 2 or uv.shape[1] != 2 or uv.shape[0] < self._min_vertices \
+                or not np.all(np.isfinite(uv)):
+            raise ValueError(f"uv must be finite (n, 2) with n >= {self._min_vertices}, "
+                             f"got {uv.shape}")
+        texture = np.asarray(texture)
+        if texture.ndim != 3 or texture.shape[2] != 3 or texture.dtype != np.uint8 \
+                or texture.shape[0] == 0 or texture.shape[1] == 0:
+            raise ValueError(f"texture must be (h, w, 3) uint8, got {texture.dtype} {texture.shape}")
+        return np.ascontiguousarray(uv), _DECODE[texture].astype(np.float32)
+
+    def render(self, vertices, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """Draw the mesh posed at vertices: (n, 3) world positions.
+
+        Returns image (H, W, 3) uint8 sRGB and depth (H, W) float32: distance
+        along the camera's viewing axis of the nearest surface (the nearest of
+        the 2x2 samples when supersampling), +inf where nothing is drawn.
+        """
+        v = np.asarray(vertices)
+        if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] < self._min_vertices:
+            raise ValueError(f"vertices must be (n, 3) with n >= {self._min_vertices}, got {v.shape}")
+        v = np.ascontiguousarray(v, dtype=np.float64)
+        if not np.all(np.isfinite(v)):
+            raise ValueError("vertices contain NaN or infinite values")
+        if len(self._uv) and len(self._uv) != len(v):
+            raise ValueError(f"vertices must match uv: {len(self._uv)} rows, got {len(v)}")
+        if not isinstance(camera, Camera):
+            raise ValueError(f"camera must be a Camera, got {type(camera).__name__}")
+        ss = self.supersample
+        width, height = self.size
+        screen = camera.project(v, (width * ss, height * ss))
+        self._zbuf.fill(np.inf)
+        self._tri_id.fill(-1)
+        rasterize(screen, self.faces, camera.near, camera.far, self._zbuf, self._tri_id,
+                  self._bary, self._no_count)
+        upper = np.zeros(len(v))
+        if len(self._mouth_vertices):
+            ys = screen[self._mouth_vertices, 1]  # pixel y grows downward
+            upper[self._mouth_vertices] = (ys.max() - ys) / max(ys.max() - ys.min(), 1e-9)
+        basis = camera.basis()
+        image = np.empty((height, width, 3), np.uint8)
+        depth = np.empty((height, width), np.float32)
+        shade(self._tri_id, self._bary, self._zbuf, self.faces, vertex_normals(v, self.faces),
+              v, self._uv, self._texture, self._mouth, upper, self._albedo, self._params,
+              self._light_dir, self._light_rgb, np.asarray(camera.eye), basis[2],
+              camera.is_perspective, self._background, _DECODE, _ENCODE, ss, image, depth)
+        return image, depth

@@ -1,0 +1,152 @@
+"""fd-send and fd-recv end to end on the bundled clip, and every user mistake as one line."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+import pytest
+
+from sender.estimate import lip_gap
+from tests.test_output import parse_y4m
+
+ROOT = Path(__file__).resolve().parents[1]
+CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
+SEND = [sys.executable, "-m", "sender.cli"]
+RECV = [sys.executable, "-m", "receiver.cli"]
+
+
+def run(args, stdin=None, **kw):
+    return subprocess.run(args, input=stdin, capture_output=True, cwd=ROOT, timeout=300, **kw)
+
+
+def clip_frames() -> int:
+    cap = cv2.VideoCapture(str(CLIP))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    return n
+
+
+@pytest.fixture(scope="module")
+def sent(tmp_path_factory):
+    """The sample clip sent once: (stream bytes, sender dump)."""
+    tmp = tmp_path_factory.mktemp("sent")
+    result = run(SEND + [str(CLIP), "--dump", str(tmp / "send.npz")])
+    assert result.returncode == 0, result.stderr.decode()
+    return result.stdout, np.load(tmp / "send.npz")
+
+
+def assert_one_line_error(result, prog):
+    err = result.stderr.decode()
+    assert result.returncode != 0
+    assert "Traceback" not in err
+    assert err.startswith(f"{prog}: ") and err.count("\n") == 1, err
+
+
+def test_pipe_gives_one_frame_per_input_frame_at_its_rate(tmp_path):
+    out = tmp_path / "out.mp4"
+    result = subprocess.run(f"{' '.join(SEND)} {CLIP} -q | {' '.join(RECV)} -q -o {out} --size 256",
+                            shell=True, capture_output=True, cwd=ROOT, timeout=300)
+    assert result.returncode == 0, result.stderr.decode()
+    with av.open(str(out)) as container:
+        stream = container.streams.video[0]
+        decoded = list(container.decode(stream))
+        rate = float(stream.average_rate)
+    assert len(decoded) == clip_frames()
+    assert rate == pytest.approx(cv2.VideoCapture(str(CLIP)).get(cv2.CAP_PROP_FPS))
+    assert (decoded[0].width, decoded[0].height) == (256, 256)
+
+
+def test_sender_dump_has_landmarks_pose_and_params(sent):
+    _, dump = sent
+    n = clip_frames()
+    assert dump["landmarks"].shape == (n, 468, 3)
+    assert dump["found"].all()
+    assert dump["params"].shape == (n, len(dump["names"]))
+    assert dump["pose_rotation"].shape == (n, 3, 3)
+    np.testing.assert_allclose(np.linalg.det(dump["pose_rotation"]), 1.0, atol=1e-6)
+
+
+def test_decoded_jaw_angle_follows_the_mouth_opening(sent, tmp_path):
+    stream, dump = sent
+    result = run(RECV + ["-q", "-o", str(tmp_path / "out.y4m"), "--size", "64", "--dump", str(tmp_path / "recv.npz")],
+                 stdin=stream)
+    assert result.returncode == 0, result.stderr.decode()
+    decoded = np.load(tmp_path / "recv.npz")
+    theta = decoded["params"][:, list(decoded["names"]).index("theta")]
+    gap = [lip_gap(lm) for lm in dump["landmarks"]]
+    assert np.corrcoef(theta, gap)[0, 1] > 0.8
+    # the receiver holds what the sender meant, to within half a quantiser step
+    np.testing.assert_allclose(decoded["params"], dump["params"], atol=0.13)
+
+
+def test_y4m_on_stdout(sent):
+    stream, _ = sent
+    result = run(RECV + ["-q", "-o", "-", "--size", "32x48"], stdin=stream)
+    assert result.returncode == 0, result.stderr.decode()
+    fields, count = parse_y4m(result.stdout)
+    assert (fields[b"W"], fields[b"H"], count) == (b"32", b"48", clip_frames())
+
+
+def test_truncated_stream_keeps_the_good_frames(sent, tmp_path):
+    stream, _ = sent
+    out = tmp_path / "out.y4m"
+    result = run(RECV + ["-q", "-o", str(out), "--size", "32"], stdin=stream[: len(stream) // 2])
+    assert_one_line_error(result, "fd-recv")
+    assert "truncated" in result.stderr.decode()
+    _, count = parse_y4m(out.read_bytes())
+    assert 0 < count < clip_frames()
+
+
+def no_face_video(path: Path) -> Path:
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("libx264", rate=25)
+        stream.width, stream.height, stream.pix_fmt = 128, 128, "yuv420p"
+        for i in range(10):
+            img = np.full((128, 128, 3), 90 + i, np.uint8)
+            for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    return path
+
+
+@pytest.mark.parametrize("case, message", [
+    ("missing", "no such file"),
+    ("text", "not a video"),
+    ("noface", "no face"),
+])
+def test_sender_errors(tmp_path, case, message):
+    path = {"missing": tmp_path / "nope.mp4",
+            "text": tmp_path / "notes.mp4",
+            "noface": tmp_path / "grey.mp4"}[case]
+    if case == "text":
+        path.write_text("this is not a video\n")
+    if case == "noface":
+        no_face_video(path)
+    result = run(SEND + [str(path)])
+    assert_one_line_error(result, "fd-send")
+    assert message in result.stderr.decode()
+    assert result.stdout == b""
+
+
+@pytest.mark.parametrize("data, message", [
+    (b"", "empty input"),
+    (b"\x00garbage garbage garbage" * 10, "not an fd stream"),
+])
+def test_receiver_errors(data, message):
+    result = run(RECV + ["-o", "-"], stdin=data)
+    assert_one_line_error(result, "fd-recv")
+    assert message in result.stderr.decode()
+
+
+@pytest.mark.parametrize("args, prog", [
+    (SEND, "fd-send"), (SEND + [str(CLIP), "--bogus"], "fd-send"), (RECV + ["--size", "abc"], "fd-recv"),
+])
+def test_bad_arguments_are_one_line(args, prog):
+    result = run(args)
+    assert_one_line_error(result, prog)
+    assert result.returncode == 2
