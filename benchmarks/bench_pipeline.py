@@ -29,7 +29,7 @@ def bench(clip: Path, size: int) -> str:
     n = len(session.frames)
 
     decoder = StreamDecoder()
-    events = decoder.feed(data)
+    events = decoder.feed(data) + decoder.close()
     view = FaceView(events[0], load_base_face(), (size, size))
     frames = [e for e in events if isinstance(e, Frame)]
     view.render(frames[0].params)  # compile and warm up outside the timing

@@ -14,6 +14,7 @@ HEAD_ROTATION = ("rx", "ry", "rz")
 FIELD_OF_VIEW = 20.0  # degrees: a portrait lens, little perspective distortion
 FRAMING = 1.35  # the view's height over the face's height
 HEAD_DEPTH = 0.6  # the head turns about a point this far behind the face's centre (base-face units)
+BACKGROUND = (38, 42, 48)  # a dark slate that sets off skin without the harshness of black
 
 
 class FaceView:
@@ -29,7 +30,7 @@ class FaceView:
         self._turns_head = len(names) > len(PAPER_PARAMS)
         self._f3_with_jaw = header.f3_with_jaw
         self._deformer = Deformer(face)
-        self._renderer = Renderer(face.faces, size=size, mouth_faces=face.mouth_faces)
+        self._renderer = Renderer(face.faces, size=size, mouth_faces=face.mouth_faces, background=BACKGROUND)
         lo, hi = face.vertices.min(axis=0), face.vertices.max(axis=0)
         centre = (lo + hi) / 2
         distance = FRAMING * (hi[1] - lo[1]) / 2 / np.tan(np.radians(FIELD_OF_VIEW / 2)) + hi[2] - centre[2]

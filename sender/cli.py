@@ -21,6 +21,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("input", help="video file (anything OpenCV reads: mp4, mpg, avi, ...)")
     p.add_argument("-o", "--output", default="-", metavar="FILE",
                    help="where the stream goes: a file, or - for stdout (default)")
+    p.add_argument("--quality", type=int, choices=range(1, 6), default=3, metavar="1-5",
+                   help="quantiser fineness, 1 (coarse, fewest bits) to 5 (fine); each level halves the "
+                        "steps of the one below (default 3: 0.25 degree, 0.002 face heights)")
+    p.add_argument("--frames-per-packet", type=int, choices=range(1, 33), default=2, metavar="N",
+                   help="frames sent together (1-32): fewer framing bits, N-1 frames more latency (default 2)")
     p.add_argument("--dump", metavar="FILE.npz",
                    help="also write per-frame landmarks, head pose and unquantised parameters")
     p.add_argument("-q", "--quiet", action="store_true", help="no statistics on stderr")
@@ -40,7 +45,7 @@ def _run(args) -> int:
         raise InputError("refusing to write a binary stream to a terminal: pipe it (| fd-recv) or use -o FILE")
     out = sys.stdout.buffer if args.output == "-" else _open_output(args.output)
     started = time.perf_counter()
-    session = SendSession(args.input)
+    session = SendSession(args.input, args.quality, args.frames_per_packet)
     try:
         for chunk in session.stream():
             out.write(chunk)

@@ -6,8 +6,7 @@ import numpy as np
 
 from codec.deform import Deformer
 from codec.face_model import load_base_face
-from protocol.stream import Header, encode_end, encode_frame, encode_header
-from protocol.quantise import steps_for
+from protocol.stream import DEFAULT_QUALITY, Header, StreamEncoder, steps_for
 from sender.analysis import FaceAnalyser, FrameAnalysis
 from sender.estimate import ParameterEstimator
 from sender.video import VideoSource
@@ -16,7 +15,7 @@ from sender.video import VideoSource
 class SendSession:
     """Opens the video and the models; :meth:`stream` yields the stream's bytes as frames are analysed."""
 
-    def __init__(self, video_path: str) -> None:
+    def __init__(self, video_path: str, quality: int = DEFAULT_QUALITY, frames_per_packet: int = 2) -> None:
         from sender.tracker import FaceTracker
 
         self.video = VideoSource(video_path)
@@ -24,8 +23,10 @@ class SendSession:
         estimator = ParameterEstimator(face, Deformer(face))
         self.analyser = FaceAnalyser(FaceTracker(), estimator, face.vertices,
                                      calibration_frames=round(self.video.fps))
-        self.header = Header(self.video.fps, self.analyser.names, steps_for(self.analyser.names),
-                             face.content_id)
+        names = self.analyser.names
+        self.header = Header(self.video.fps, names, steps_for(names, quality), face.content_id,
+                             quality=quality, key_interval=max(1, min(255, round(self.video.fps))))
+        self.encoder = StreamEncoder(self.header, frames_per_packet)
         self.frames: list[FrameAnalysis] = []
         self.stream_bytes = 0
         self.header_bytes = 0
@@ -33,14 +34,15 @@ class SendSession:
     def stream(self) -> Iterator[bytes]:
         for seq, result in enumerate(self.analyser.run(self.video.frames())):
             if seq == 0:  # only once a face is known: a clip without one writes nothing
-                header = encode_header(self.header)
+                header = self.encoder.header()
                 self.header_bytes = len(header)
                 yield header
             self.frames.append(result)
-            packet = encode_frame(self.header, seq, result.params, result.landmarks is not None)
+            packet = self.encoder.frame(result.params, result.landmarks is not None)
             self.stream_bytes += len(packet)
-            yield packet
-        end = encode_end(len(self.frames))
+            if packet:
+                yield packet
+        end = self.encoder.end()
         self.stream_bytes += len(end)
         yield end
 

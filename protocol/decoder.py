@@ -1,0 +1,244 @@
+"""Packets or bytes in, events out; damage is reported and survived, never raised.
+
+After a valid header nothing a link can do to the bytes raises: a packet that
+fails its check, cannot be decoded, or does not follow the frames held is
+dropped with a :class:`Damage` event, frames are concealed until the next
+keyframe, and :attr:`stats` counts it all. Only a stream that never was one (no
+header, another version) raises :class:`BitstreamError`.
+"""
+
+import numpy as np
+
+from codec.errors import BitstreamError
+from protocol.arith import Decoder
+from protocol.entropy import GroupState
+from protocol.events import Damage, End, Frame, Model, Stats
+from protocol.framing import DELTA, END, HEADER, KEY, MODEL, SYNC, packet_size, parse, read_varint
+from protocol.header import Header, parse_header
+from protocol.quantise import dequantise
+
+MAX_SEEK = 1 << 16  # bytes searched for a header before the input is declared foreign
+_MAX_FRAME = 1 << 40
+
+
+class PacketDecoder:
+    """Whole packets (no sync byte) in, events out: the decoder for datagram transports."""
+
+    def __init__(self) -> None:
+        self.header: Header | None = None
+        self.stats = Stats()
+        self.ended = False
+        self._group: GroupState | None = None  # None: waiting for a keyframe
+        self._next = 0  # coded index the next delta packet must start at
+        self._out = 0  # next output frame number
+        self._last: tuple[int, np.ndarray, bool] | None = None  # coded index, params, face of the last decoded
+        self._model = bytearray()
+        self._previous = b""
+
+    def receive(self, data: bytes) -> list:
+        """Events of one datagram; a bad one is dropped and reported."""
+        events = self.accept(data)
+        return self.damage("packet fails its check or cannot be decoded") if events is None else events
+
+    def accept(self, data: bytes) -> list | None:
+        """Events of one packet, or None if it is not a valid packet here (nothing changed)."""
+        data = bytes(data)
+        try:
+            packet = parse(data, self._next)
+        except BitstreamError:
+            if data == self._previous:
+                self.stats.duplicates += 1
+                return []
+            return None
+        if self.header is None and packet.kind != HEADER:
+            return None
+        handler = {HEADER: self._on_header, MODEL: self._on_model, KEY: self._on_key,
+                   DELTA: self._on_delta, END: self._on_end}[packet.kind]
+        try:
+            events = handler(packet)
+        except BitstreamError:
+            if packet.kind == HEADER:
+                raise
+            self._group = None
+            return None
+        if events is not None:
+            self.stats.packets += 1
+            self._previous = data
+        return events
+
+    def damage(self, reason: str, always: bool = False) -> list:
+        """Records damage; reported once per loss of sync (unless ``always``), then frames wait for a keyframe."""
+        if self._group is None and not always:
+            return []
+        self._group = None
+        self.stats.damaged += 1
+        self.stats.reasons.append(reason)
+        return [Damage(self._out, reason)]
+
+    def _on_header(self, packet) -> list | None:
+        header = parse_header(packet.body)
+        if self.header is not None:
+            if header != self.header:
+                return None
+            self.stats.duplicates += 1
+            return []
+        self.header = header
+        return [header]
+
+    def _on_model(self, packet) -> list | None:
+        got = read_varint(packet.body, 0, self.header.model_size)
+        if got is None:
+            return None
+        offset, pos = got
+        chunk = packet.body[pos:]
+        if offset < len(self._model) or not chunk:
+            self.stats.duplicates += 1
+            return []
+        if offset > len(self._model) or offset + len(chunk) > self.header.model_size:
+            return None
+        self._model += chunk
+        return [Model(bytes(self._model))] if len(self._model) == self.header.model_size else []
+
+    def _on_key(self, packet) -> list | None:
+        got = read_varint(packet.body, 0, _MAX_FRAME)
+        if got is None:
+            return None
+        coded, pos = got
+        if coded < self._next or self.ended:
+            self.stats.duplicates += 1
+            return []
+        group = GroupState(len(self.header.names), self.header.skip_static)
+        dec = Decoder(packet.body[pos:])
+        decoded = [group.decode_key(dec)] + [group.decode_delta(dec) for _ in range(packet.count - 1)]
+        events = self.damage("packets lost before a keyframe") if coded > self._next else []
+        self._group = group
+        return events + self._emit(coded, decoded)
+
+    def _on_delta(self, packet) -> list | None:
+        if self._group is None or self.ended:
+            return None
+        dec = Decoder(packet.body)
+        decoded = [self._group.decode_delta(dec) for _ in range(packet.count)]
+        return self._emit(self._next, decoded)
+
+    def _on_end(self, packet) -> list | None:
+        got = read_varint(packet.body, 0, _MAX_FRAME)
+        if got is None or got[1] != len(packet.body):
+            return None
+        if self.ended:
+            self.stats.duplicates += 1
+            return []
+        total = got[0]
+        complete = self._group is not None and self._next == -(-total // self.header.divisor)
+        events = self._fill(total, None, complete)
+        self.ended = True
+        return events + [End(total)]
+
+    def _emit(self, coded: int, decoded: list[tuple[list[int], bool]]) -> list:
+        events = []
+        for c, (values, face) in enumerate(decoded, coded):
+            params = dequantise(values, self.header.steps)
+            frame = c * self.header.divisor
+            events += self._fill(frame, (c, params))
+            events.append(Frame(frame, params, face))
+            self._last, self._out = (c, params, face), frame + 1
+        self._next = coded + len(decoded)
+        return events
+
+    def _fill(self, until: int, target: tuple[int, np.ndarray] | None, complete: bool = False) -> list:
+        """Frames from the next one up to ``until``: interpolated towards ``target`` if it follows the
+        last decoded frame directly, held after the last frame of a ``complete`` stream, else concealed."""
+        events = []
+        if self._last is None:
+            held, face, start = np.zeros(len(self.header.names)), False, None
+        else:
+            start, held, face = self._last
+        follows = complete or (target is not None and start is not None and target[0] == start + 1)
+        for f in range(self._out, until):
+            if complete:
+                events.append(Frame(f, held, face, interpolated=True))
+            elif follows:
+                t = (f - start * self.header.divisor) / self.header.divisor
+                events.append(Frame(f, held + t * (target[1] - held), face, interpolated=True))
+            else:
+                events.append(Frame(f, held, False, concealed=True))
+                self.stats.concealed += 1
+        self._out = max(self._out, until)
+        return events
+
+
+class DatagramDecoder(PacketDecoder):
+    """One packet per datagram: :meth:`receive` each, in arrival order."""
+
+
+class StreamDecoder:
+    """Incremental decoder of a byte stream: :meth:`feed` any chunking, :meth:`close` at its end."""
+
+    def __init__(self) -> None:
+        self._core = PacketDecoder()
+        self._buf = bytearray()
+        self._seen = 0
+
+    @property
+    def header(self) -> Header | None:
+        return self._core.header
+
+    @property
+    def stats(self) -> Stats:
+        return self._core.stats
+
+    @property
+    def ended(self) -> bool:
+        return self._core.ended
+
+    def feed(self, data: bytes) -> list:
+        """Events completed by ``data``."""
+        self._buf += data
+        self._seen += len(data)
+        return self._scan(final=False)
+
+    def close(self) -> list:
+        """Events still in the buffer, then a :class:`Damage` if the stream stopped before its end mark.
+
+        Raises BitstreamError if the input held no stream at all.
+        """
+        events = self._scan(final=True)
+        if self._core.header is None:
+            raise BitstreamError("empty input: no fd stream" if not self._seen
+                                 else "input is not an fd stream (no valid header)")
+        if not self._core.ended:
+            events += self._core.damage("stream stopped before its end mark", always=True)
+        return events
+
+    def _scan(self, final: bool) -> list:
+        events, buf, pos = [], self._buf, 0
+        while pos < len(buf):
+            if buf[pos] != SYNC:
+                start = pos
+                pos = buf.find(SYNC, pos)
+                pos = len(buf) if pos < 0 else pos
+                events += self._skip(pos - start, "bytes between packets")
+                continue
+            try:
+                size = packet_size(buf, pos + 1)
+            except BitstreamError:
+                size = 0
+            if not final and (size is None or pos + 1 + size > len(buf)):
+                break  # wait for the rest: size is at most MAX_BODY plus a few bytes
+            got = self._core.accept(buf[pos + 1:pos + 1 + size]) if size else None
+            if got is None:
+                events += self._skip(1, "packet fails its check or cannot be decoded")
+                pos += 1
+            else:
+                events += got
+                pos += 1 + size
+        del buf[:pos]
+        return events
+
+    def _skip(self, n: int, reason: str) -> list:
+        self._core.stats.skipped_bytes += n
+        if self._core.header is None:
+            if self._core.stats.skipped_bytes > MAX_SEEK:
+                raise BitstreamError(f"input is not an fd stream (no header in its first {MAX_SEEK} bytes)")
+            return []
+        return self._core.damage(reason)

@@ -1,0 +1,108 @@
+"""Parameters in, packets out: quantise, predict in closed loop, code, frame.
+
+:class:`PacketEncoder` returns packets for datagram transports;
+:class:`StreamEncoder` returns the same packets with sync bytes for byte streams.
+"""
+
+import numpy as np
+
+from codec.errors import BitstreamError
+from protocol.arith import Encoder
+from protocol.entropy import GroupState
+from protocol.framing import DELTA, END, HEADER, KEY, MAX_COUNT, MODEL, SYNC, build, varint
+from protocol.header import Header, encode_header
+from protocol.quantise import quantise
+
+MODEL_CHUNK = 1024
+_MAX_INDEX = 1 << 30  # quantised values beyond this are a caller's bug (NaN, wrong units)
+
+
+class PacketEncoder:
+    """Packets of one stream. ``frames_per_packet`` (1-32) trades latency for framing bits.
+
+    Packets never span a keyframe; with ``header.skip_static`` a frame equal to
+    the previous does not count towards ``frames_per_packet``.
+    """
+
+    def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"") -> None:
+        if not 1 <= frames_per_packet <= MAX_COUNT:
+            raise BitstreamError(f"frames per packet must be 1-{MAX_COUNT}")
+        if len(model) != header.model_size:
+            raise BitstreamError(f"header announces {header.model_size} model bytes, got {len(model)}")
+        self._h, self._fpp, self._model = header, frames_per_packet, model
+        self._frames = 0
+        self._group: GroupState | None = None
+        self._coder: Encoder | None = None
+        self._kind = self._first = self._count = self._active = 0
+
+    def header(self) -> list[bytes]:
+        """The header packet, then the face model in chunks."""
+        chunks = [build(MODEL, varint(i) + self._model[i:i + MODEL_CHUNK])
+                  for i in range(0, len(self._model), MODEL_CHUNK)]
+        return [build(HEADER, encode_header(self._h))] + chunks
+
+    def frame(self, params: np.ndarray, face_seen: bool) -> list[bytes]:
+        """(k,) float params in the header's layout; returns the packets this frame completes."""
+        params = np.asarray(params, dtype=np.float64)
+        if params.shape != self._h.steps.shape or not np.all(np.isfinite(params)):
+            raise BitstreamError(f"expected {self._h.steps.size} finite parameters, got {params.shape}")
+        index, self._frames = self._frames, self._frames + 1
+        if index % self._h.divisor:
+            return []
+        coded = index // self._h.divisor
+        values = quantise(params, self._h.steps)
+        if max(map(abs, values)) >= _MAX_INDEX:
+            raise BitstreamError("parameter out of range for the stream's steps")
+        face = bool(face_seen)
+        if coded % self._h.key_interval == 0:
+            self._group = GroupState(len(values), self._h.skip_static)
+            self._start(KEY, coded)
+            self._group.encode_key(self._coder, values, face)
+            self._active += 1
+        else:
+            if self._coder is None:
+                self._start(DELTA, coded)
+            self._active += not self._group.is_static(values, face)
+            self._group.encode_delta(self._coder, values, face)
+        self._count += 1
+        if (self._active >= self._fpp or self._count == MAX_COUNT
+                or (coded + 1) % self._h.key_interval == 0):
+            return [self._flush()]
+        return []
+
+    def end(self) -> list[bytes]:
+        """The last pending packet and the end mark."""
+        pending = [self._flush()] if self._coder is not None else []
+        return pending + [build(END, varint(self._frames))]
+
+    def _start(self, kind: int, coded: int) -> None:
+        self._coder, self._kind, self._first, self._count, self._active = Encoder(), kind, coded, 0, 0
+
+    def _flush(self) -> bytes:
+        body = self._coder.finish()
+        if self._kind == KEY:
+            body = varint(self._first) + body
+        self._coder = None
+        return build(self._kind, body, self._count, self._first)
+
+
+class StreamEncoder:
+    """:class:`PacketEncoder` for byte streams: the same methods return bytes, each packet after a sync byte."""
+
+    def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"") -> None:
+        self.packets = PacketEncoder(header, frames_per_packet, model)
+
+    def header(self) -> bytes:
+        return frame_bytes(self.packets.header())
+
+    def frame(self, params: np.ndarray, face_seen: bool) -> bytes:
+        """b"" while the frame waits in a packet (or is not sent at all)."""
+        return frame_bytes(self.packets.frame(params, face_seen))
+
+    def end(self) -> bytes:
+        return frame_bytes(self.packets.end())
+
+
+def frame_bytes(packets: list[bytes]) -> bytes:
+    """Packets as they go on a byte stream."""
+    return b"".join(bytes([SYNC]) + p for p in packets)

@@ -1,0 +1,121 @@
+"""Packets and their framing: type, length, check, and a sync byte for byte streams.
+
+A packet is ``type-and-count byte | length varint | body | check``. The check is
+as wide as what it guards is worth: CRC-32 for the header and model chunks, CRC-16
+for keyframes and the end mark, CRC-8 for delta packets. A delta packet's CRC also
+covers the number of its first frame, which is not sent: a delta is accepted
+only by a decoder that holds exactly the frames it was predicted from, so a lost
+or repeated packet is caught without spending bits on a sequence number.
+
+On a byte stream (pipe, file, TCP) each packet is preceded by :data:`SYNC`; a
+datagram carries one packet without it.
+"""
+
+import binascii
+import zlib
+from dataclasses import dataclass
+
+from codec.errors import BitstreamError
+
+SYNC = 0xFD
+HEADER, MODEL, KEY, DELTA, END = range(5)
+TYPE_NAMES = ("header", "model", "key", "delta", "end")
+MAX_BODY = 4096  # longer than any valid packet: header with 64 names, 1 KiB model chunk, 32 keyframe frames
+MAX_COUNT = 32  # frames per packet (5 bits)
+_CHECK = {HEADER: 4, MODEL: 4, KEY: 2, DELTA: 1, END: 2}
+
+
+def _crc8_table() -> list[int]:
+    table = []
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x07 if crc & 0x80 else crc << 1) & 0xFF
+        table.append(crc)
+    return table
+
+
+_CRC8 = _crc8_table()  # polynomial x^8 + x^2 + x + 1: every 1-3 bit error in a delta packet
+
+
+def _check(kind: int, data: bytes, first_frame: int) -> bytes:
+    width = _CHECK[kind]
+    if width == 4:
+        return zlib.crc32(data).to_bytes(4, "big")
+    if width == 2:
+        return binascii.crc_hqx(data, 0xFFFF).to_bytes(2, "big")
+    crc = 0
+    for byte in first_frame.to_bytes(4, "big") + data:
+        crc = _CRC8[crc ^ byte]
+    return bytes([crc])
+
+
+def varint(n: int) -> bytes:
+    """Unsigned LEB128."""
+    out = bytearray()
+    while True:
+        out.append((n & 0x7F) | (0x80 if n > 0x7F else 0))
+        n >>= 7
+        if not n:
+            return bytes(out)
+
+
+def read_varint(data: bytes, pos: int, limit: int) -> tuple[int, int] | None:
+    """(value, next position), None if ``data`` ends first; BitstreamError above ``limit``."""
+    value = shift = 0
+    while pos < len(data):
+        byte = data[pos]
+        value |= (byte & 0x7F) << shift
+        pos += 1
+        if value > limit:
+            raise BitstreamError(f"number {value} over its limit {limit}")
+        if not byte & 0x80:
+            return value, pos
+        shift += 7
+    return None
+
+
+@dataclass(frozen=True)
+class Packet:
+    kind: int
+    count: int  # frames in a key or delta packet, else 0
+    body: bytes
+
+
+def build(kind: int, body: bytes, count: int = 0, first_frame: int = 0) -> bytes:
+    """One packet's bytes (no sync byte); ``first_frame`` enters a delta packet's CRC only."""
+    if not 0 <= count <= MAX_COUNT or len(body) > MAX_BODY:
+        raise BitstreamError(f"packet too large ({count} frames, {len(body)} bytes)")
+    data = bytes([kind << 5 | (count - 1 if count else 0)]) + varint(len(body)) + body
+    return data + _check(kind, data, first_frame)
+
+
+def packet_size(data: bytes, pos: int) -> int | None:
+    """Size of the packet starting at ``data[pos]``, None if more bytes are needed to tell.
+
+    Raises BitstreamError when the first bytes cannot start a packet.
+    """
+    if pos >= len(data):
+        return None
+    kind = data[pos] >> 5
+    if kind not in _CHECK:
+        raise BitstreamError(f"unknown packet type {kind}")
+    length = read_varint(data, pos + 1, MAX_BODY)
+    if length is None:
+        return None
+    n, body_start = length
+    return body_start - pos + n + _CHECK[kind]
+
+
+def parse(data: bytes, expected_frame: int) -> Packet:
+    """Checks one whole packet (no sync byte); a delta's CRC is checked against ``expected_frame``."""
+    size = packet_size(data, 0)
+    if size is None or size != len(data):
+        raise BitstreamError("packet length does not match its length field")
+    kind = data[0] >> 5
+    width = _CHECK[kind]
+    if _check(kind, data[:-width], expected_frame) != data[-width:]:
+        raise BitstreamError(f"{TYPE_NAMES[kind]} packet fails its check")
+    body_start = read_varint(data, 1, MAX_BODY)[1]
+    count = (data[0] & 0x1F) + 1 if kind in (KEY, DELTA) else 0
+    return Packet(kind, count, bytes(data[body_start:-width]))

@@ -1,0 +1,124 @@
+"""The stream header: what a decoder must know before the first frame.
+
+Binary, with every count and length bounded before anything is read or
+allocated: a hostile header is refused, not obeyed.
+"""
+
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from codec.errors import BitstreamError
+from protocol.framing import read_varint, varint
+
+MAGIC = b"FD"
+VERSION = 2
+MAX_NAMES = 64
+MAX_NAME = 32
+MAX_MODEL = 16 << 20  # bytes of pre-shared face model carried in-band
+MAX_KEY_INTERVAL = 255
+MAX_DIVISOR = 16
+_FLAG_F3_WITH_JAW, _FLAG_STATIC = 1, 2
+
+
+@dataclass(frozen=True, eq=False)
+class Header:
+    """Stream parameters.
+
+    fps: frame rate of the source (the decoder outputs this rate);
+    names: parameter layout, one name per value; steps: (k,) float64 quantiser
+    steps; face_id: sha256 hex of the face model; quality: level the steps came
+    from (0 if custom); key_interval: coded frames between keyframes; divisor:
+    one frame in ``divisor`` is sent, the decoder interpolates the others;
+    skip_static: frames equal to the previous cost a flag only; model_size:
+    bytes of face model carried after the header (0: referenced by face_id only).
+    """
+
+    fps: float
+    names: tuple[str, ...]
+    steps: np.ndarray
+    face_id: str
+    f3_with_jaw: bool = False
+    quality: int = 3
+    key_interval: int = 25
+    divisor: int = 1
+    skip_static: bool = False
+    model_size: int = 0
+
+    def __post_init__(self) -> None:
+        names, steps = self.names, np.asarray(self.steps, dtype=np.float64)
+        if not (1 <= len(names) <= MAX_NAMES and all(1 <= len(n) <= MAX_NAME and n.isascii() for n in names)):
+            raise BitstreamError(f"bad parameter layout: {names!r}")
+        if steps.shape != (len(names),) or not np.all(np.isfinite(steps) & (steps > 0)):
+            raise BitstreamError("quantiser steps must be one positive number per parameter")
+        if not (0 < self.fps <= 1000 and 1 <= self.key_interval <= MAX_KEY_INTERVAL
+                and 1 <= self.divisor <= MAX_DIVISOR and 0 <= self.model_size <= MAX_MODEL
+                and 0 <= self.quality <= 255):
+            raise BitstreamError("header field out of range")
+        try:
+            if len(bytes.fromhex(self.face_id)) != 32:
+                raise ValueError
+        except (ValueError, TypeError):
+            raise BitstreamError("face id must be a sha256 hex string") from None
+        object.__setattr__(self, "steps", steps)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Header) and encode_header(self) == encode_header(other)
+
+
+def encode_header(h: Header) -> bytes:
+    flags = _FLAG_F3_WITH_JAW * h.f3_with_jaw | _FLAG_STATIC * h.skip_static
+    out = bytearray(MAGIC + bytes([VERSION, flags, h.quality, h.key_interval, h.divisor]))
+    out += varint(round(h.fps * 1000)) + bytes.fromhex(h.face_id) + varint(h.model_size)
+    out.append(len(h.names))
+    for name in h.names:
+        out += bytes([len(name)]) + name.encode("ascii")
+    out += struct.pack(f">{len(h.names)}d", *h.steps)
+    return bytes(out)
+
+
+def parse_header(body: bytes) -> Header:
+    """Header from a checked header packet's body; BitstreamError if it is not one we can read."""
+    if len(body) < 8 or body[:2] != MAGIC:
+        raise BitstreamError("input is not an fd stream (no fd header)")
+    if body[2] != VERSION:
+        raise BitstreamError(f"unsupported stream version {body[2]} (this decoder reads {VERSION})")
+    flags, quality, key_interval, divisor = body[3:7]
+    fps_milli, pos = _varint(body, 7, 1_000_000)
+    if pos + 32 > len(body):
+        raise BitstreamError("stream header cut short")
+    face_id = body[pos:pos + 32].hex()
+    model_size, pos = _varint(body, pos + 32, MAX_MODEL)
+    names = []
+    count = _byte(body, pos)
+    pos += 1
+    if not 1 <= count <= MAX_NAMES:
+        raise BitstreamError(f"stream header names {count} parameters")
+    for _ in range(count):
+        n = _byte(body, pos)
+        if not 1 <= n <= MAX_NAME or pos + 1 + n > len(body):
+            raise BitstreamError("stream header cut short")
+        try:
+            names.append(body[pos + 1:pos + 1 + n].decode("ascii"))
+        except UnicodeDecodeError:
+            raise BitstreamError("parameter name is not ASCII") from None
+        pos += 1 + n
+    if len(body) != pos + 8 * count:
+        raise BitstreamError("stream header length does not match its layout")
+    steps = np.array(struct.unpack(f">{count}d", body[pos:]))
+    return Header(fps_milli / 1000, tuple(names), steps, face_id, bool(flags & _FLAG_F3_WITH_JAW), quality,
+                  key_interval, divisor, bool(flags & _FLAG_STATIC), model_size)
+
+
+def _varint(body: bytes, pos: int, limit: int) -> tuple[int, int]:
+    got = read_varint(body, pos, limit)
+    if got is None:
+        raise BitstreamError("stream header cut short")
+    return got
+
+
+def _byte(body: bytes, pos: int) -> int:
+    if pos >= len(body):
+        raise BitstreamError("stream header cut short")
+    return body[pos]
