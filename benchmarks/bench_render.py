@@ -1,34 +1,52 @@
-"""Time Renderer.render on the MediaPipe canonical face (468 vertices, 898 triangles).
+"""Time Renderer.render on the base face (468 vertices, 898 triangles), issue 4's table.
 
-Median milliseconds per frame over FRAMES frames after a warm-up, with numba
-pinned to one thread. Also writes /tmp/bench_face*.png to eyeball the result.
+Median milliseconds per frame over FRAMES deformed frames after a warm-up,
+with numba pinned to one thread, at 256x256 and 512x512, shaded (albedo) and
+textured, supersample 1 and 2, with the receiver's framing, mouth and eyes.
+Then the first-call time (import of the renderer to the end of the first
+512x512 frame) in fresh processes, with the compile cache cleared and warm.
+Also writes /tmp/bench_face_*.png to eyeball the result.
 Run: .venv/bin/python benchmarks/bench_render.py
 """
 
-import re
+import datetime
+import os
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
-from pathlib import Path
 
 import numba
 import numpy as np
 
 from codec.camera import Camera
+from codec.deform import Deformer
+from codec.face_model import load_base_face
 from codec.render import Renderer
+from receiver.face_view import FIELD_OF_VIEW, FRAMING
 
 FRAMES = 100
-MESH = Path(__file__).resolve().parents[1] / "samples" / "base_face" / "canonical_face.pbtxt"
-INNER_LIPS = {78, 95, 88, 178, 87, 14, 317, 402, 318, 324, 308, 191, 80, 81, 82, 13,
-              312, 311, 310, 415}
+FIRST_CALL = """
+import time
+start = time.perf_counter()
+import numpy as np
+from codec.camera import Camera
+from codec.face_model import load_base_face
+from codec.render import Renderer
+face = load_base_face()
+Renderer(face.faces, size=(512, 512), mouth_faces=face.mouth_faces, eye_faces=face.eye_faces).render(
+    face.vertices, Camera.perspective(20.0, eye=(0, 0, 4.4), target=(0, 0, 0)))
+print(time.perf_counter() - start)
+"""
 
 
-def load_face() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Vertices (468, 3) float64 in cm, uv (468, 2), faces (898, 3) int32."""
-    text = MESH.read_text()
-    vbuf = np.array(re.findall(r"vertex_buffer:\s*(\S+)", text), float).reshape(-1, 5)
-    faces = np.array(re.findall(r"index_buffer:\s*(\S+)", text), np.int32).reshape(-1, 3)
-    return vbuf[:, :3], vbuf[:, 3:], faces
+def receiver_camera(vertices: np.ndarray) -> Camera:
+    """The receiver's portrait framing (see receiver.face_view)."""
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    centre = (lo + hi) / 2
+    distance = FRAMING * (hi[1] - lo[1]) / 2 / np.tan(np.radians(FIELD_OF_VIEW / 2)) + hi[2] - centre[2]
+    return Camera.perspective(FIELD_OF_VIEW, eye=centre + [0, 0, distance], target=centre)
 
 
 def checker(n: int = 256, cells: int = 16) -> np.ndarray:
@@ -38,7 +56,19 @@ def checker(n: int = 256, cells: int = 16) -> np.ndarray:
     return np.where(mask[..., None], np.uint8([230, 180, 150]), np.uint8([150, 90, 70]))
 
 
-def time_frames(renderer: Renderer, frames: list, camera: Camera) -> float:
+def talking_frames(face) -> list[np.ndarray]:
+    """FRAMES (468, 3) meshes: the jaw opening and closing, lips moving a little."""
+    deformer, rng = Deformer(face), np.random.default_rng(0)
+    frames = []
+    for k in range(FRAMES):
+        params = np.zeros(13)
+        params[0] = 6.0 + 6.0 * np.sin(k / 5.0)
+        params[1:] = rng.normal(0.0, 0.005, 12)
+        frames.append(deformer.deform(params))
+    return frames
+
+
+def median_ms(renderer: Renderer, frames: list, camera: Camera) -> float:
     for verts in frames[:5]:
         renderer.render(verts, camera)
     times = []
@@ -49,32 +79,37 @@ def time_frames(renderer: Renderer, frames: list, camera: Camera) -> float:
     return statistics.median(times) * 1e3
 
 
+def first_call_seconds(cache_dir: str) -> float:
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache_dir, NUMBA_NUM_THREADS="1")
+    out = subprocess.run([sys.executable, "-c", FIRST_CALL], env=env, check=True,
+                         capture_output=True, text=True)
+    return float(out.stdout.split()[-1])
+
+
 def main() -> None:
     numba.set_num_threads(1)
-    verts, uv, faces = load_face()
-    centre = (verts.min(0) + verts.max(0)) / 2
-    camera = Camera.perspective(30.0, eye=centre + (0, 0, 40.0), target=centre)
-    rng = np.random.default_rng(0)
-    frames = [verts + rng.normal(0, 0.05, verts.shape) for _ in range(FRAMES)]
-    mouth = np.array([set(f) <= INNER_LIPS for f in faces.tolist()])
-    print(f"{'size':>9} {'texture':>8} {'ss':>3} {'ms/frame':>9}")
+    face = load_base_face()
+    camera = receiver_camera(face.vertices)
+    frames = talking_frames(face)
+    parts = dict(mouth_faces=face.mouth_faces, eye_faces=face.eye_faces)
+    print(f"Renderer.render, base face, one thread, median of {FRAMES} frames, "
+          f"{datetime.date.today().isoformat()}, {numba.config.NUMBA_DEFAULT_NUM_THREADS} cpus\n")
+    print("| size | supersample | shaded ms | textured ms |")
+    print("|---|---|---|---|")
     for size in (256, 512):
-        for textured in (False, True):
-            for ss in (1, 2):
-                extra = dict(uv=uv, texture=checker()) if textured else {}
-                renderer = Renderer(faces, size=(size, size), supersample=ss,
-                                    background=(40, 40, 48), mouth_faces=mouth, **extra)
-                ms = time_frames(renderer, frames, camera)
-                print(f"{size}x{size:<4} {str(textured):>8} {ss:>3} {ms:9.2f}")
-    opened = verts.copy()
-    lower = np.unique(faces[mouth])
-    lower = lower[verts[lower, 1] < verts[lower, 1].mean()]
-    opened[lower, 1] -= 1.2  # drop the lower inner lip to open the mouth
-    for name, mesh, ss in (("", verts, 1), ("_open_ss2", opened, 2)):
-        renderer = Renderer(faces, size=(512, 512), supersample=ss, mouth_faces=mouth,
-                            background=(40, 40, 48))
-        image, _ = renderer.render(mesh, camera)
-        write_png(f"/tmp/bench_face{name}.png", image)
+        for ss in (1, 2):
+            cells = []
+            for extra in ({}, dict(uv=face.uv, texture=checker())):
+                renderer = Renderer(face.faces, size=(size, size), supersample=ss, **parts, **extra)
+                cells.append(median_ms(renderer, frames, camera))
+            print(f"| {size}x{size} | {ss} | {cells[0]:.2f} | {cells[1]:.2f} |")
+    with tempfile.TemporaryDirectory() as cache:
+        cold = first_call_seconds(cache)
+        warm = first_call_seconds(cache)
+    print(f"\nfirst call (import to first 512x512 frame): cold cache {cold:.2f} s, warm cache {warm:.2f} s")
+    renderer = Renderer(face.faces, size=(512, 512), supersample=2, **parts)
+    for name, verts in (("closed", face.vertices), ("open", frames[8])):
+        write_png(f"/tmp/bench_face_{name}.png", renderer.render(verts, camera)[0])
 
 
 def write_png(path: str, image: np.ndarray) -> None:

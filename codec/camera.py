@@ -79,6 +79,10 @@ class Camera:
         right = right / rnorm
         return np.stack([right, np.cross(back, right), back])
 
+    def focal(self, height: int) -> float:
+        """Focal length in pixels of a perspective camera for an image ``height`` pixels tall."""
+        return 0.5 * height / math.tan(math.radians(self.fov_y_deg) * 0.5)
+
     def project(self, points: np.ndarray, size: tuple[int, int]) -> np.ndarray:
         """Map (n, 3) world points to (n, 4) float64 screen coordinates.
 
@@ -93,7 +97,7 @@ class Camera:
         depth = -view[:, 2]
         out = np.empty((view.shape[0], 4), dtype=np.float64)
         if self.is_perspective:
-            focal = 0.5 * height / math.tan(math.radians(self.fov_y_deg) * 0.5)
+            focal = self.focal(height)
             with np.errstate(divide="ignore", invalid="ignore"):
                 inv = 1.0 / depth
             out[:, 0] = 0.5 * width + focal * view[:, 0] * inv

@@ -16,6 +16,18 @@ class ArgumentParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
 
+def parse_size(text: str) -> tuple[int, int]:
+    """An argparse type for an output size: ``512`` or ``640x480`` -> (width, height), even numbers."""
+    try:
+        w, _, h = text.lower().partition("x")
+        size = (int(w), int(h or w))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a size: {text!r} (use 512 or 640x480)") from None
+    if not all(16 <= s <= 4096 and s % 2 == 0 for s in size):
+        raise argparse.ArgumentTypeError(f"size {text!r} out of range (even numbers from 16 to 4096)")
+    return size
+
+
 def run_main(prog: str, body: Callable[[], int]) -> int:
     """Runs ``body``; user mistakes (FdError) and closed pipes become one line and exit 1."""
     from codec.errors import FdError

@@ -8,6 +8,10 @@ Per frame the sender gives theta (degrees) and the vectors V2, V3, V8, V9:
    the projection weights of X on its feature triangle: X' = X + V.
 Fixed points (F1, F5, F6, F7, F10, F11, F12, F13) have V = 0. Everything that
 does not depend on the parameters is precomputed, so deform() is a few numpy ops.
+
+deform_extended() adds the upper face (codec/upper_face.py: brows, lids,
+cheeks; gaze is for the renderer) and then a rigid head pose, with the
+parameters of EXTENDED_PARAMS.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import numpy as np
 
 from codec.face_model import BaseFace
 from codec.regions import FEATURE_NAMES, RegionMap, build_region_map, feature_positions
+from codec.upper_face import GAZE_PARAMS, UPPER_PARAMS, EyeModel, UpperFace, build_upper_face
 
 PAPER_PARAMS: tuple[str, ...] = (
     "theta", "v2x", "v2y", "v2z", "v3x", "v3y", "v3z",
@@ -23,6 +28,11 @@ PAPER_PARAMS: tuple[str, ...] = (
 )  # fmt: skip
 FREE = ("F2", "F3", "F8", "F9")  # sent, in PAPER_PARAMS order
 JAW_FOLLOWING = ("F4", "F14", "F15")
+POSE_PARAMS = ("rx", "ry", "rz", "tx", "ty", "tz")  # rotation vector (degrees), translation (base-face units)
+EXTENDED_PARAMS: tuple[str, ...] = PAPER_PARAMS + UPPER_PARAMS + GAZE_PARAMS + POSE_PARAMS
+HEAD_DEPTH = 0.6  # the head turns about a point this far behind the face's bounding-box centre
+_UPPER = slice(len(PAPER_PARAMS), len(PAPER_PARAMS) + len(UPPER_PARAMS))
+_GAZE = slice(_UPPER.stop, _UPPER.stop + len(GAZE_PARAMS))
 
 
 def rotation_matrix(axis: np.ndarray, theta_deg: float) -> np.ndarray:
@@ -56,6 +66,9 @@ class Deformer:
         self._base = np.asarray(face.vertices, dtype=np.float64)
         self._free = [col[n] for n in FREE]
         self._follow = [col[n] for n in JAW_FOLLOWING]
+        self.upper: UpperFace = build_upper_face(face, self.regions)
+        self.eyes = EyeModel.fit(face)
+        self._pivot = 0.5 * (self._base.min(axis=0) + self._base.max(axis=0)) - [0.0, 0.0, HEAD_DEPTH]
 
     @property
     def hinge_axis(self) -> tuple[np.ndarray, np.ndarray]:
@@ -96,6 +109,39 @@ class Deformer:
         out = self._base + self._w @ vec
         out[self._jaw_idx] = self._jaw_rel @ rot.T + self._origin
         return out
+
+    def deform_extended(self, params: np.ndarray, f3_with_jaw: bool = False) -> np.ndarray:
+        """(468, 3) float64 vertices from params (len(EXTENDED_PARAMS),): the paper's deformation,
+        plus the upper face (a precomputed linear term), then the head pose. Gaze moves no vertex."""
+        p = self._extended(params)
+        out = self.deform(p[: len(PAPER_PARAMS)], f3_with_jaw)
+        out += (self.upper.basis @ p[_UPPER]).reshape(-1, 3)
+        rot, shift = self._pose(p)
+        return (out - self._pivot) @ rot.T + self._pivot + shift
+
+    def iris(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(2, 3) iris centres and (2, 3) unit gaze directions (rows: face-left, face-right eye)
+        after the head pose, for params (len(EXTENDED_PARAMS),)."""
+        p = self._extended(params)
+        rot, shift = self._pose(p)
+        centres = (self.eyes.iris_centres(*p[_GAZE]) - self._pivot) @ rot.T + self._pivot + shift
+        return centres, (centres - ((self.eyes.centres - self._pivot) @ rot.T + self._pivot + shift)) / self.eyes.radius
+
+    @staticmethod
+    def _extended(params: np.ndarray) -> np.ndarray:
+        p = np.asarray(params, dtype=np.float64)
+        if p.shape != (len(EXTENDED_PARAMS),):
+            raise ValueError(f"params must have shape ({len(EXTENDED_PARAMS)},), got {p.shape}")
+        if not np.isfinite(p).all():
+            raise ValueError("params must be finite")
+        return p
+
+    @staticmethod
+    def _pose(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(3, 3) head rotation (rotation vector rx, ry, rz in degrees) and (3,) translation."""
+        rvec, shift = p[-6:-3], p[-3:]
+        angle = float(np.linalg.norm(rvec))
+        return (rotation_matrix(rvec / angle, angle) if angle > 0 else np.eye(3)), shift
 
 
 def _preset(theta: float, v2=(0, 0, 0), v3=(0, 0, 0), v8=(0, 0, 0), v9=(0, 0, 0)) -> np.ndarray:

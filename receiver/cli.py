@@ -4,24 +4,13 @@ import argparse
 import sys
 import time
 
-from codec.cli import ArgumentParser, run_main
+from codec.cli import ArgumentParser, parse_size, run_main
 
 EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
   fd-send talk.mp4 | fd-recv -o - | ffplay -
   fd-recv talk.fd -o out.y4m --size 256 --dump decoded.npz
 """
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, _, h = text.lower().partition("x")
-        size = (int(w), int(h or w))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a size: {text!r} (use 512 or 640x480)") from None
-    if not all(16 <= s <= 4096 and s % 2 == 0 for s in size):
-        raise argparse.ArgumentTypeError(f"size {text!r} out of range (even numbers from 16 to 4096)")
-    return size
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -32,7 +21,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("input", nargs="?", default="-", help="stream file, or - for stdin (default)")
     p.add_argument("-o", "--output", default="-", metavar="FILE",
                    help="video file (.mp4, .mkv, .mov: H.264), .y4m, or - for Y4M on stdout (default)")
-    p.add_argument("--size", type=_size, default=(512, 512), metavar="WxH",
+    p.add_argument("--size", type=parse_size, default=(512, 512), metavar="WxH",
                    help="output size in pixels, e.g. 512 (default) or 640x480")
     p.add_argument("--dump", metavar="FILE.npz", help="also write the decoded parameters of every frame")
     p.add_argument("-q", "--quiet", action="store_true", help="no statistics on stderr")

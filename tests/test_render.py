@@ -1,13 +1,24 @@
-"""Software renderer: exact coverage, occlusion, shading, texturing, anti-aliasing."""
+"""Software renderer: exact coverage, occlusion, shading, texturing, anti-aliasing, mouth, eyes."""
 
 import numpy as np
 import pytest
 
 from codec.camera import Camera
-from codec.raster import MOUTH_DARK, rasterize
+from codec.raster import rasterize
 from codec.render import DirectionalLight, Material, Renderer, linear_to_srgb, srgb_to_linear
+from codec.shade import MOUTH_DARK, PUPIL, SCLERA
 
 FLAT = Material(albedo=(1.0, 1.0, 1.0), ambient=1.0, specular=0.0)  # output = albedo/texture
+NO_COUNT = np.zeros((0, 0), np.int32)
+
+
+def raster(verts, faces, w, h, count=NO_COUNT):
+    """Rasterise with pixel_camera: (nearness (h, w) float32, tri_id (h, w) int32)."""
+    screen = pixel_camera(w, h).project(verts, (w, h))
+    nearness, ids = np.full((h, w), -np.inf, np.float32), np.full((h, w), -1, np.int32)
+    rasterize(screen, -screen[:, 2], faces, 0.01, 100.0, (0, 0, -1, -1), nearness, ids,
+              np.zeros((len(faces), 6)), count)
+    return nearness, ids
 
 
 def pixel_camera(w, h):
@@ -53,10 +64,8 @@ def grid_mesh(x0, x1, cells, jitter, rng):
 def test_tiling_covers_every_pixel_exactly_once(jitter):
     w = h = 64
     verts, faces = grid_mesh(8.5, 56.5, 8, jitter, np.random.default_rng(1))
-    screen = pixel_camera(w, h).project(verts, (w, h))
     count = np.zeros((h, w), np.int32)
-    rasterize(screen, faces, 0.01, 100.0, np.full((h, w), np.inf), np.full((h, w), -1, np.int32),
-              np.zeros((h, w, 2)), count)
+    raster(verts, faces, w, h, count)
     # corners sit on pixel centres 8..56 (x) and 7..55 (y, flipped): the top-left
     # rule keeps the left and top edges and drops the right and bottom ones
     expected = np.zeros((h, w), np.int32)
@@ -79,15 +88,12 @@ def test_nearer_triangle_wins_in_either_order(order):
     verts = np.concatenate([tris[k] for k in order])
     faces = np.array([[0, 1, 2], [3, 4, 5]], np.int32)
     near = order.index(0)
-    screen = pixel_camera(64, 64).project(verts, (64, 64))
-    zbuf, ids = np.full((64, 64), np.inf), np.full((64, 64), -1, np.int32)
-    rasterize(screen, faces, 0.01, 100.0, zbuf, ids, np.zeros((64, 64, 2)), np.zeros((0, 0), np.int32))
-    solo = np.full((64, 64), -1, np.int32)
-    rasterize(screen, faces[near:near + 1], 0.01, 100.0, np.full((64, 64), np.inf), solo,
-              np.zeros((64, 64, 2)), np.zeros((0, 0), np.int32))
+    nearness, ids = raster(verts, faces, 64, 64)
+    solo, _ = raster(verts, faces[near:near + 1], 64, 64)
+    covered = np.isfinite(solo)
     assert (ids == 1 - near).any()
-    np.testing.assert_array_equal(ids[solo == 0], near)
-    np.testing.assert_allclose(zbuf[solo == 0], 9.0)
+    np.testing.assert_array_equal(ids[covered], near)
+    np.testing.assert_allclose(nearness[covered], -9.0)  # orthographic nearness = -depth
 
 
 def test_flat_triangle_matches_lambert():
@@ -158,13 +164,75 @@ def test_texture_interpolation_is_perspective_correct():
     np.testing.assert_allclose(rows[0] + 1.0, 64.0, atol=1.0)
 
 
-def test_mouth_faces_render_dark_with_teeth_band():
-    verts, faces, _ = quad(8, 8, 56, 56)
-    renderer = Renderer(faces, size=(64, 64), mouth_faces=np.array([True, True]))
-    image, _ = renderer.render(verts, pixel_camera(64, 64))
+def lens(cx, cy, half_width, half_height):
+    """Eye- or mouth-shaped flat polygon at z = 0: (8, 3) vertices, (6, 3) triangles."""
+    xs = cx + half_width * np.array([-1, -0.5, 0, 0.5, 1, 0.5, 0, -0.5])
+    ys = cy + half_height * np.array([0, 0.9, 1, 0.9, 0, -0.9, -1, -0.9])
+    faces = [(0, 1, 7), (1, 2, 7), (2, 6, 7), (2, 3, 6), (3, 5, 6), (3, 4, 5)]
+    return np.stack([xs, ys, np.zeros(8)], 1), np.array(faces, np.int32)
+
+
+def test_open_mouth_is_dark_with_thin_teeth_band():
+    verts, faces = lens(32, 32, 24, 14)  # pixel rows 18..46, columns 8..56
+    image, _ = Renderer(faces, size=(64, 64), mouth_faces=np.ones(6, bool)).render(
+        verts, pixel_camera(64, 64))
     dark = np.round(linear_to_srgb(np.array(MOUTH_DARK)) * 255)
-    np.testing.assert_allclose(image[30:55, 10:54].reshape(-1, 3), np.broadcast_to(dark, (25 * 44, 3)), atol=1)
-    assert image[9:14, 10:54].min() > 100  # teeth along the upper edge
+    np.testing.assert_allclose(image[24:45, 24:41].reshape(-1, 3), np.broadcast_to(dark, (21 * 17, 3)),
+                               atol=1)
+    assert image[18:21, 30:35].min() > 100  # teeth under the upper lip, ~4 px = 0.09 mouth widths
+
+
+def test_nearly_closed_mouth_shows_no_teeth():
+    verts, faces = lens(32, 32, 24, 0.75)  # a 1.5 px gap between the lips
+    image, _ = Renderer(faces, size=(64, 64), mouth_faces=np.ones(6, bool)).render(
+        verts, pixel_camera(64, 64))
+    assert image[30:34, 20:44].max() < 60
+
+
+def test_eyes_have_dark_centres_and_light_corners():
+    left, faces = lens(18, 32, 12, 6)
+    right, _ = lens(46, 32, 12, 6)
+    verts = np.vstack([left, right])
+    faces = np.vstack([faces, faces + 8])
+    renderer = Renderer(faces, size=(64, 64), material=FLAT, lights=(), eye_faces=np.ones(12, bool))
+    image, _ = renderer.render(verts, pixel_camera(64, 64))
+    sclera = np.round(linear_to_srgb(np.array(SCLERA)) * 255)
+    pupil = np.round(linear_to_srgb(np.array(PUPIL)) * 255)
+    for cx in (18, 46):  # pixel centre (cx, 32) is each eye's centre
+        np.testing.assert_allclose(image[32, cx - 1:cx + 1], [pupil, pupil], atol=1)
+        np.testing.assert_allclose(image[31:33, cx - 10], [sclera, sclera], atol=1)
+        np.testing.assert_allclose(image[31:33, cx + 9], [sclera, sclera], atol=1)
+        assert image[32, cx - 4:cx + 4].sum(-1).max() < image[32, cx - 10].sum()
+
+
+def test_reused_renderer_matches_fresh_one():
+    big, faces, _ = quad(2, 2, 62, 62)
+    small, _, _ = quad(20, 24, 40, 36, z=1.0)
+    camera = pixel_camera(64, 64)
+    renderer = Renderer(faces, size=(64, 64), supersample=2, background=(10, 20, 30))
+    renderer.render(big, camera)
+    again = renderer.render(small, camera)
+    fresh = Renderer(faces, size=(64, 64), supersample=2, background=(10, 20, 30)).render(small, camera)
+    for got, want in zip(again, fresh):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_face_renders_eyes_mouth_and_depth():
+    from codec.face_model import load_base_face
+
+    face = load_base_face()
+    camera = Camera.perspective(20.0, eye=(0, 0, 4.4), target=(0, 0, 0))
+    image, depth = Renderer(face.faces, size=(128, 128), mouth_faces=face.mouth_faces,
+                            eye_faces=face.eye_faces).render(face.vertices, camera)
+    covered = np.isfinite(depth)
+    assert 0.2 < covered.mean() < 0.6
+    assert 4.4 - 0.6 < depth[covered].min() and depth[covered].max() < 4.4 + 0.6
+    screen = camera.project(face.vertices, (128, 128))
+    for eye in ((face.faces[face.eye_faces] < 240).all(1), (face.faces[face.eye_faces] >= 240).all(1)):
+        (x0, y0), (x1, y1) = screen[np.unique(face.faces[face.eye_faces][eye]), :2].min(0).astype(int), \
+            screen[np.unique(face.faces[face.eye_faces][eye]), :2].max(0).astype(int)
+        patch = image[y0:y1 + 1, x0:x1 + 1].sum(-1)
+        assert patch.min() < 120 and patch.max() > 450  # a dark pupil in a light sclera
 
 
 def test_supersampling_matches_inside_and_blends_edges():
@@ -202,6 +270,8 @@ def test_bad_input_raises_value_error():
                  lambda: Renderer(faces, uv=uv, texture=np.zeros((4, 4, 3))),
                  lambda: Renderer(faces, size=(64, 64), background=np.zeros((32, 32, 3), np.uint8)),
                  lambda: Renderer(faces, mouth_faces=[True]),
+                 lambda: Renderer(faces, eye_faces=np.ones(3, bool)),
+                 lambda: Renderer(faces, mouth_faces=np.ones(2, bool), eye_faces=np.ones(2, bool)),
                  lambda: Camera.perspective(60, eye=(0, 0, 1), target=(0, 0, 1)),
                  lambda: Camera.orthographic(-1, eye=(0, 0, 1), target=(0, 0, 0))):
         with pytest.raises(ValueError):

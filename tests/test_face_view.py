@@ -1,0 +1,56 @@
+"""The receiver's view: layouts it accepts, faces it refuses, and that parameters reach the pixels."""
+
+import numpy as np
+import pytest
+
+from codec.deform import PAPER_PARAMS
+from codec.errors import BitstreamError
+from codec.face_model import load_base_face
+from protocol.stream import Header, steps_for
+from receiver.face_view import FaceView
+
+FACE = load_base_face()
+SIZE = (96, 96)
+
+
+def view(names, face_id=FACE.content_id):
+    return FaceView(Header(25.0, names, steps_for(names), face_id), FACE, SIZE)
+
+
+def test_rest_parameters_render_the_face_in_the_middle():
+    image = view(PAPER_PARAMS).render(np.zeros(len(PAPER_PARAMS)))
+    background = image[0, 0]
+    assert image.shape == (96, 96, 3)
+    assert np.any(image[48, 48] != background)
+    assert np.all(image[2, 2] == background)
+
+
+def test_opening_the_jaw_changes_the_mouth_not_the_forehead():
+    v = view(PAPER_PARAMS)
+    rest, open_ = v.render(np.zeros(13)), v.render(np.r_[15.0, np.zeros(12)])
+    change = np.abs(rest.astype(int) - open_.astype(int)).max(axis=2)
+    assert change[55:80].max() > 40
+    assert change[:30].max() <= 1  # rounding of shared sums at most: no forehead vertex moves
+
+
+def test_head_rotation_in_a_layout_turns_the_head():
+    names = PAPER_PARAMS + ("rx", "ry", "rz")
+    v = view(names)
+    still, turned = v.render(np.zeros(16)), v.render(np.r_[np.zeros(13), 0.0, 30.0, 0.0])
+    assert np.mean(np.any(still != turned, axis=2)) > 0.05
+
+
+def test_any_subset_of_the_extended_layout_is_accepted():
+    v = view(("lid_l", "lid_r", "theta"))
+    assert v.render(np.array([1.0, 1.0, 5.0])).shape == (96, 96, 3)
+
+
+@pytest.mark.parametrize("names", [("theta", "wiggle"), ("theta", "theta")])
+def test_unknown_layouts_are_refused(names):
+    with pytest.raises(BitstreamError, match="unknown parameter layout"):
+        view(names)
+
+
+def test_a_stream_for_another_face_is_refused():
+    with pytest.raises(BitstreamError, match="made for face model"):
+        view(PAPER_PARAMS, face_id="ab" * 32)
