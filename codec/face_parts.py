@@ -70,12 +70,14 @@ def eye_components(faces: np.ndarray, eye_mask: np.ndarray) -> list[np.ndarray]:
     return [tris[labels == label] for label in dict.fromkeys(labels.tolist())]
 
 
-def eye_discs(vertices: np.ndarray, faces: np.ndarray, eyes: list[np.ndarray]) -> np.ndarray:
+def eye_discs(vertices: np.ndarray, faces: np.ndarray, eyes: list[np.ndarray],
+              irises: np.ndarray | None = None) -> np.ndarray:
     """(e, 7) float64 per eye: iris centre (3), unit eye axis (3), iris radius.
 
     The centre is the midpoint of the eye's two farthest vertices (its
-    corners), which barely move when the lids do; the axis is the fill's
-    area-weighted normal, along which the iris disc is projected.
+    corners), which barely move when the lids do, or the nearest of the given
+    (k, 3) ``irises`` (a gaze model's); the axis is the fill's area-weighted
+    normal, along which the iris disc is projected.
     """
     out = np.zeros((max(len(eyes), 1), 7))
     for e, tris in enumerate(eyes):
@@ -86,6 +88,8 @@ def eye_discs(vertices: np.ndarray, faces: np.ndarray, eyes: list[np.ndarray]) -
         axis = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).sum(0)
         norm = np.linalg.norm(axis)
         out[e, :3] = (pts[i] + pts[j]) / 2
+        if irises is not None and len(irises):
+            out[e, :3] = irises[np.argmin(((np.asarray(irises) - out[e, :3]) ** 2).sum(1))]
         out[e, 3:6] = axis / norm if norm > 0.0 else 0.0
         out[e, 6] = IRIS_SCALE * np.sqrt(dist2[i, j])
     return out

@@ -181,8 +181,11 @@ class Renderer:
             raise ValueError(f"texture must be (h, w, 3) uint8, got {texture.dtype} {texture.shape}")
         return np.ascontiguousarray(uv), _DECODE[texture].astype(np.float32)
 
-    def render(self, vertices, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    def render(self, vertices, camera: Camera, irises=None) -> tuple[np.ndarray, np.ndarray]:
         """Draw the mesh posed at vertices: (n, 3) world positions.
+
+        irises: optional (k, 3) iris centres (e.g. from a gaze model); each eye
+        takes the nearest one instead of the midpoint of its corners.
 
         Returns image (H, W, 3) uint8 sRGB and depth (H, W) float32: distance
         along the camera's viewing axis of the nearest surface (the nearest of
@@ -224,6 +227,6 @@ class Renderer:
               self._albedo, self._ambient, self._light_dir, self._light_rgb, half,
               self._spec_lut, self._spec_cut, view,
               teeth_columns(screen, self._mouth_vertices, sw),
-              eye_discs(v, self.faces, self._eyes), persp, self._background, _DECODE,
+              eye_discs(v, self.faces, self._eyes, irises), persp, self._background, _DECODE,
               _ENCODE, ss, image, depth)
         return image, depth

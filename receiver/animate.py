@@ -137,8 +137,9 @@ def _run(args) -> int:
     writer = open_writer(args.output, args.fps, args.size, sys.stdout.buffer)
     try:
         for i in range(count):
-            vertices = deformer.deform_extended(interpolate(times, keys, i / args.fps))
-            writer.write(renderer.render(vertices, camera)[0])
+            params = interpolate(times, keys, i / args.fps)
+            vertices = deformer.deform_extended(params)
+            writer.write(renderer.render(vertices, camera, deformer.iris(params)[0])[0])
     finally:
         writer.close()
     if not args.quiet:

@@ -52,4 +52,5 @@ class FaceView:
         full = np.zeros(len(EXTENDED_PARAMS))
         full[self._slots] = params
         vertices = self._deformer.deform_extended(full, f3_with_jaw=self._f3_with_jaw)
-        return self._renderer.render(vertices, self._camera)[0]
+        irises = self._deformer.iris(full)[0]
+        return self._renderer.render(vertices, self._camera, irises)[0]

@@ -54,3 +54,17 @@ def test_unknown_layouts_are_refused(names):
 def test_a_stream_for_another_face_is_refused():
     with pytest.raises(BitstreamError, match="made for face model"):
         view(PAPER_PARAMS, face_id="ab" * 32)
+
+
+def _pupil_column(image):
+    """Mean column of the dark pixels on the face (the pupils), background left out."""
+    upper = image[: image.shape[0] // 2]  # eyes, not the mouth
+    on_face = np.any(upper != image[0, 0], axis=2)
+    rows, cols = np.nonzero(on_face & (upper.astype(int).sum(axis=2) < 200))
+    return cols.mean()
+
+
+def test_gaze_moves_the_irises_toward_the_face_own_left():
+    v = view(("gaze_yaw",))
+    right, ahead, left = (v.render(np.array([g])) for g in (-25.0, 0.0, 25.0))
+    assert _pupil_column(right) + 1.0 < _pupil_column(ahead) < _pupil_column(left) - 1.0
