@@ -36,7 +36,8 @@ class BaseFace:
     """A face mesh whose vertex i is tracker landmark i.
 
     vertices (468, 3) float64 base-face units; faces (m, 3) int32; uv (468, 2)
-    float64 texture coordinates; feature_points "F1".."F15" -> landmark index;
+    float64 texture coordinates with v up, as the renderer takes them (the
+    canonical file stores v down), so texture images stand upright; feature_points "F1".."F15" -> landmark index;
     mouth_faces / eye_faces (m,) bool mark the triangles filling the mouth
     opening and the eyes; content_id is the sha256 hex that names the model in
     the stream header; meta is the parsed feature_points.json (regions, O).
@@ -119,7 +120,7 @@ def load_base_face(path: str | Path | None = None) -> BaseFace:
     return BaseFace(
         vertices=vertices,
         faces=faces,
-        uv=raw[:, 3:5].copy(),
+        uv=np.column_stack([raw[:, 3], 1.0 - raw[:, 4]]),
         feature_points=points,
         mouth_faces=_loop_faces(faces, [sorted(set(lips))]),
         eye_faces=_loop_faces(faces, eyes),
