@@ -1,0 +1,86 @@
+"""How close a decoded talking-face video is to its original.
+
+Keypoint measures run our tracker on both videos: the average keypoint distance
+(AKD) of talking-head codec papers, over the inter-ocular distance so that it
+does not depend on resolution, for the whole face and for the mouth alone, and
+the correlation of the mouth opening over time. Pixel measures (PSNR, SSIM)
+are taken inside the face, where the codecs differ; the background is not
+what a face codec is for.
+"""
+
+import cv2
+import numpy as np
+
+#: Lip landmarks of the tracker (outer and inner contours).
+MOUTH = (0, 13, 14, 17, 37, 39, 40, 61, 78, 80, 81, 82, 84, 87, 88, 91, 95, 146, 178, 181, 185, 191,
+         267, 269, 270, 291, 308, 310, 311, 312, 314, 317, 318, 321, 324, 375, 402, 405, 409, 415)
+_EYES = ((33, 133), (362, 263))
+_UPPER_LIP, _LOWER_LIP = 13, 14
+
+
+def inter_ocular(landmarks: np.ndarray) -> np.ndarray:
+    """(t,) distance between the eye centres of (t, 468, 2+) landmarks."""
+    lm = np.asarray(landmarks)[..., :2]
+    right = lm[:, list(_EYES[0])].mean(axis=1)
+    left = lm[:, list(_EYES[1])].mean(axis=1)
+    return np.linalg.norm(left - right, axis=1)
+
+
+def akd(reference: np.ndarray, decoded: np.ndarray, indices=None) -> float:
+    """Mean image-plane distance between (t, 468, 2+) keypoint tracks over the reference's inter-ocular
+    distance, on frames where both have a face (NaN rows mark frames without one)."""
+    ref, dec = np.asarray(reference)[..., :2], np.asarray(decoded)[..., :2]
+    both = ~(np.isnan(ref).any(axis=(1, 2)) | np.isnan(dec).any(axis=(1, 2)))
+    if not both.any():
+        return float("nan")
+    pick = slice(None) if indices is None else list(indices)
+    dist = np.linalg.norm(ref[both][:, pick] - dec[both][:, pick], axis=2).mean(axis=1)
+    return float((dist / inter_ocular(ref[both])).mean())
+
+
+def mouth_opening(landmarks: np.ndarray) -> np.ndarray:
+    """(t,) inner-lip gap over inter-ocular distance."""
+    lm = np.asarray(landmarks)[..., :2]
+    return np.linalg.norm(lm[:, _UPPER_LIP] - lm[:, _LOWER_LIP], axis=1) / inter_ocular(lm)
+
+
+def opening_correlation(reference: np.ndarray, decoded: np.ndarray) -> float:
+    """Pearson correlation of the mouth opening of two keypoint tracks (frames with a face in both)."""
+    a, b = mouth_opening(reference), mouth_opening(decoded)
+    both = ~(np.isnan(a) | np.isnan(b))
+    if both.sum() < 3 or a[both].std() == 0 or b[both].std() == 0:
+        return float("nan")
+    return float(np.corrcoef(a[both], b[both])[0, 1])
+
+
+def face_mask(landmarks: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: inside the convex hull of one frame's (468, 2+) landmarks."""
+    mask = np.zeros(shape, np.uint8)
+    hull = cv2.convexHull(np.round(np.asarray(landmarks)[:, :2]).astype(np.int32))
+    cv2.fillConvexPoly(mask, hull, 1)
+    return mask.astype(bool)
+
+
+def psnr(reference: list, decoded: list, masks: list) -> float:
+    """PSNR in dB over the masked pixels of all frames: (H, W, 3) uint8 frames, (H, W) bool masks."""
+    err = sum(float(((r[m].astype(np.float64) - d[m]) ** 2).sum()) for r, d, m in zip(reference, decoded, masks))
+    count = sum(int(m.sum()) * 3 for m in masks)
+    if count == 0:
+        return float("nan")
+    return float("inf") if err == 0 else float(10 * np.log10(255.0 ** 2 * count / err))
+
+
+def ssim(reference: list, decoded: list, masks: list) -> float:
+    """Mean SSIM (grey, 11x11 Gaussian window, sigma 1.5) over the masked pixels of all frames."""
+    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
+    total, count = 0.0, 0
+    for r, d, m in zip(reference, decoded, masks):
+        x = cv2.cvtColor(r, cv2.COLOR_RGB2GRAY).astype(np.float64)
+        y = cv2.cvtColor(d, cv2.COLOR_RGB2GRAY).astype(np.float64)
+        blur = lambda img: cv2.GaussianBlur(img, (11, 11), 1.5)  # noqa: E731
+        mx, my = blur(x), blur(y)
+        vx, vy, cxy = blur(x * x) - mx * mx, blur(y * y) - my * my, blur(x * y) - mx * my
+        smap = ((2 * mx * my + c1) * (2 * cxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2))
+        total += float(smap[m].sum())
+        count += int(m.sum())
+    return total / count if count else float("nan")

@@ -1,0 +1,70 @@
+"""Quality measures: zero error scores perfectly, known errors score as computed by hand."""
+
+import numpy as np
+import pytest
+
+from experiment.metrics import MOUTH, akd, face_mask, mouth_opening, opening_correlation, psnr, ssim
+
+
+def track(t=10, seed=0):
+    rng = np.random.default_rng(seed)
+    base = rng.uniform(100, 300, size=(468, 2))
+    base[[33, 133]] = [[150, 150], [170, 150]]
+    base[[362, 263]] = [[230, 150], [250, 150]]  # eye centres 80 px apart
+    lm = np.repeat(base[None], t, axis=0)
+    lm[:, 14, 1] += np.linspace(0, 20, t)  # the mouth opens
+    return lm
+
+
+def test_akd_is_zero_for_identical_tracks_and_scales_with_the_inter_ocular_distance():
+    ref = track()
+    assert akd(ref, ref) == 0.0
+    np.testing.assert_allclose(akd(ref, ref + [8.0, 0.0]), 8.0 / 80.0)
+    np.testing.assert_allclose(akd(ref * 2, ref * 2 + [8.0, 0.0]), 8.0 / 160.0)
+
+
+def test_mouth_akd_sees_only_the_mouth():
+    ref = track()
+    moved = ref.copy()
+    moved[:, 10] += 50.0  # a forehead point
+    assert akd(ref, moved, MOUTH) == 0.0
+    assert akd(ref, moved) > 0.0
+
+
+def test_frames_without_a_face_are_left_out():
+    ref, dec = track(), track()
+    dec[3] = np.nan
+    dec[4] += 1000.0
+    assert akd(ref[:3], dec[:3]) == 0.0
+    assert akd(ref, dec) == pytest.approx(akd(ref[4:5], dec[4:5]) / 9)
+
+
+def test_mouth_opening_correlation():
+    ref = track()
+    np.testing.assert_allclose(mouth_opening(ref)[-1], np.linalg.norm(ref[-1, 13] - ref[-1, 14]) / 80.0)
+    assert opening_correlation(ref, ref) == pytest.approx(1.0)
+    frozen = np.repeat(ref[:1], len(ref), axis=0)
+    assert np.isnan(opening_correlation(ref, frozen))
+
+
+def test_psnr_and_ssim_inside_the_mask():
+    rng = np.random.default_rng(1)
+    a = rng.integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    b = a.copy()
+    mask = np.zeros((64, 64), bool)
+    mask[16:48, 16:48] = True
+    b[~mask] = 0  # outside the face: not counted
+    assert psnr([a], [b], [mask]) == float("inf")
+    assert ssim([a], [a], [mask]) == pytest.approx(1.0)
+    c = a.astype(int)
+    c[mask] += 10
+    c = np.clip(c, 0, 255).astype(np.uint8)
+    mse = ((a[mask].astype(float) - c[mask]) ** 2).mean()
+    assert psnr([a], [c], [mask]) == pytest.approx(10 * np.log10(255 ** 2 / mse))
+    assert ssim([a], [c], [mask]) < 1.0
+
+
+def test_face_mask_is_the_hull():
+    pts = np.array([[10, 10], [50, 10], [50, 40], [10, 40]] + [[30, 25]] * 464, float)
+    mask = face_mask(pts, (64, 64))
+    assert mask[25, 30] and not mask[5, 5] and mask.sum() == pytest.approx(41 * 31, rel=0.05)
