@@ -37,7 +37,7 @@ def bench(clip: Path, size: int) -> str:
     images = [view.render(f.params) for f in frames]
     render_s = time.perf_counter() - started
     with tempfile.TemporaryDirectory() as tmp:
-        writer = open_writer(str(Path(tmp) / "out.mp4"), session.video.fps, (size, size), io.BytesIO())
+        writer = open_writer(str(Path(tmp) / "out.mp4"), session.source.fps, (size, size), io.BytesIO())
         started = time.perf_counter()
         for image in images:
             writer.write(image)
@@ -46,7 +46,7 @@ def bench(clip: Path, size: int) -> str:
 
     bits = 8 * session.stream_bytes / n
     return (f"| {datetime.date.today()} | {clip.name} | {n} | {n / send_s:.1f} | {size}x{size} | "
-            f"{n / render_s:.1f} | {n / (render_s + write_s):.1f} | {bits:.0f} | {bits * session.video.fps:.0f} |")
+            f"{n / render_s:.1f} | {n / (render_s + write_s):.1f} | {bits:.0f} | {bits * session.source.fps:.0f} |")
 
 
 def main() -> None:

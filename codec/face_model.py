@@ -40,7 +40,9 @@ class BaseFace:
     canonical file stores v down), so texture images stand upright; feature_points "F1".."F15" -> landmark index;
     mouth_faces / eye_faces (m,) bool mark the triangles filling the mouth
     opening and the eyes; content_id is the sha256 hex that names the model in
-    the stream header; meta is the parsed feature_points.json (regions, O).
+    the stream header; meta is the parsed feature_points.json (regions, O);
+    texture (h, w, 3) uint8 RGB or None: a person's own skin (codec/face_file.py),
+    None for the generic face, which the renderer shades in a plain material.
     """
 
     vertices: np.ndarray
@@ -51,6 +53,7 @@ class BaseFace:
     eye_faces: np.ndarray
     content_id: str
     meta: dict
+    texture: np.ndarray | None = None
 
 
 def content_id(vertices: np.ndarray, faces: np.ndarray, meta: dict) -> str:
@@ -84,8 +87,8 @@ def _parse_mesh(text: str, path: Path) -> tuple[np.ndarray, np.ndarray]:
     return vb.reshape(N_LANDMARKS, 5), ib.reshape(-1, 3).astype(np.int32)
 
 
-def _normalise(xyz: np.ndarray) -> np.ndarray:
-    """Scale to forehead-top-to-chin height 1 and centre the bounding box at 0."""
+def normalise(xyz: np.ndarray) -> np.ndarray:
+    """(n, 3) -> (n, 3): scale to forehead-top-to-chin height 1 and centre the bounding box at 0."""
     scale = 1.0 / (xyz[TOP, 1] - xyz[CHIN, 1])
     centre = 0.5 * (xyz.min(axis=0) + xyz.max(axis=0))
     return (xyz - centre) * scale
@@ -108,22 +111,35 @@ def load_base_face(path: str | Path | None = None) -> BaseFace:
     raw, faces = _parse_mesh(_read_text(folder / MESH_FILE), folder / MESH_FILE)
     try:
         meta = json.loads(_read_text(folder / FEATURES_FILE))
+    except ValueError:
+        raise InputError(f"base face file {folder / FEATURES_FILE} is malformed") from None
+    vertices = normalise(raw[:, :3])
+    return build_face(vertices, faces, np.column_stack([raw[:, 3], 1.0 - raw[:, 4]]), meta,
+                      content_id(vertices, faces, meta), origin=str(folder / FEATURES_FILE))
+
+
+def build_face(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, meta: dict, face_id: str,
+               texture: np.ndarray | None = None, origin: str = "face model") -> BaseFace:
+    """A BaseFace from its parts, the masks derived from ``meta``'s loops; InputError naming
+    ``origin`` if the feature points are not F1..F15 landmark indices."""
+    try:
         points = {name: int(fp["landmark"]) for name, fp in meta["feature_points"].items()}
         lips = meta["loops"]["inner_lip_upper"] + meta["loops"]["inner_lip_lower"]
         eyes = [meta["loops"]["eye_left"], meta["loops"]["eye_right"]]
-    except (ValueError, KeyError, TypeError):
-        raise InputError(f"base face file {folder / FEATURES_FILE} is malformed") from None
+    except (ValueError, KeyError, TypeError, AttributeError):
+        raise InputError(f"{origin}: malformed feature points") from None
     if len(points) != 15 or not all(0 <= i < N_LANDMARKS for i in points.values()):
-        raise InputError(f"base face file {folder / FEATURES_FILE} needs F1..F15 landmark indices")
-    vertices = _normalise(raw[:, :3])
+        raise InputError(f"{origin}: needs F1..F15 landmark indices")
+    vertices = np.asarray(vertices, dtype=np.float64)
     vertices.setflags(write=False)
     return BaseFace(
         vertices=vertices,
         faces=faces,
-        uv=np.column_stack([raw[:, 3], 1.0 - raw[:, 4]]),
+        uv=np.asarray(uv, dtype=np.float64),
         feature_points=points,
         mouth_faces=_loop_faces(faces, [sorted(set(lips))]),
         eye_faces=_loop_faces(faces, eyes),
-        content_id=content_id(vertices, faces, meta),
+        content_id=face_id,
         meta=meta,
+        texture=texture,
     )

@@ -19,9 +19,9 @@ os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its configuration banner
 
 #: name -> (PyAV encoder, options): settings for a live link (no look-ahead beyond what rate control needs)
 CODECS = {
-    "x264": ("libx264", {"preset": "medium"}),
-    "x265": ("libx265", {"preset": "medium", "x265-params": "log-level=error"}),
-    "av1": ("libsvtav1", {"preset": "8"}),
+    "x264": ("libx264", {"preset": "medium", "threads": "1"}),
+    "x265": ("libx265", {"preset": "medium", "x265-params": "log-level=error:pools=none:frame-threads=1"}),
+    "av1": ("libsvtav1", {"preset": "8", "svtav1-params": "lp=1"}),
 }
 
 
@@ -53,6 +53,7 @@ def encode_decode(frames: list[np.ndarray], fps: float, codec: str, target_bps: 
     context.framerate = Fraction(fps).limit_denominator(1001)
     context.bit_rate = int(target_bps)
     context.options = dict(options)
+    context.thread_count = 1  # one core, as every speed here is measured; and x264 threads are not bit-exact
     started = time.perf_counter()
     packets = []
     for i, rgb in enumerate(frames):

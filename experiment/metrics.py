@@ -38,6 +38,20 @@ def akd(reference: np.ndarray, decoded: np.ndarray, indices=None) -> float:
     return float((dist / inter_ocular(ref[both])).mean())
 
 
+def aligned(decoded: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(t, 468, 2) decoded keypoints moved by the per-frame 2-D similarity that best fits them to the
+    reference's: what is left is shape and motion, not where or how large the face is drawn."""
+    dec = np.asarray(decoded, dtype=np.float64)[..., :2]
+    ref = np.asarray(reference, dtype=np.float64)[..., :2]
+    z_dec = dec[..., 0] + 1j * dec[..., 1]
+    z_ref = ref[..., 0] + 1j * ref[..., 1]
+    mu_dec, mu_ref = z_dec.mean(axis=1, keepdims=True), z_ref.mean(axis=1, keepdims=True)
+    a = ((z_ref - mu_ref) * np.conj(z_dec - mu_dec)).sum(axis=1, keepdims=True)
+    a = a / (np.abs(z_dec - mu_dec) ** 2).sum(axis=1, keepdims=True)
+    z = a * (z_dec - mu_dec) + mu_ref
+    return np.stack([z.real, z.imag], axis=-1)
+
+
 def mouth_opening(landmarks: np.ndarray) -> np.ndarray:
     """(t,) inner-lip gap over inter-ocular distance."""
     lm = np.asarray(landmarks)[..., :2]

@@ -11,10 +11,13 @@ from codec.errors import BitstreamError
 
 QUALITIES = (1, 2, 3, 4, 5)  # coarse to fine
 DEFAULT_QUALITY = 3
-#: Steps at the default level: degrees for angles, base-face units for displacements.
+#: Steps at the default level: degrees for angles, base-face units for displacements, and for
+#: the lids (0 open .. 1 closed) a step that moves the lid about as far as VECTOR_STEP does.
 ANGLE_STEP = 0.25
 VECTOR_STEP = 0.002
-ANGLES = ("theta", "rx", "ry", "rz")
+LID_STEP = 0.05
+ANGLES = ("theta", "rx", "ry", "rz", "gaze_yaw", "gaze_pitch")
+LIDS = ("lid_l", "lid_r")
 #: Typical bits per frame of the paper layout at 25 fps per level, measured by
 #: benchmarks/bench_bitstream.py on the dev clips (4 frames per packet); drives :func:`quality_for_bitrate`.
 TYPICAL_BITS = {1: 34.0, 2: 45.0, 3: 57.0, 4: 70.0, 5: 83.0}
@@ -25,7 +28,8 @@ def steps_for(names: tuple[str, ...], quality: int = DEFAULT_QUALITY) -> np.ndar
     if quality not in QUALITIES:
         raise BitstreamError(f"quality must be one of {QUALITIES}, not {quality!r}")
     scale = 2.0 ** (DEFAULT_QUALITY - quality)
-    return np.array([(ANGLE_STEP if n in ANGLES else VECTOR_STEP) * scale for n in names])
+    return np.array([(ANGLE_STEP if n in ANGLES else LID_STEP if n in LIDS else VECTOR_STEP) * scale
+                     for n in names])
 
 
 def quality_for_bitrate(bits_per_second: float, fps: float) -> int:

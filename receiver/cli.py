@@ -1,6 +1,7 @@
-"""fd-recv: an fd stream in (stdin by default), rendered face video out."""
+"""fd-recv: an fd stream in (stdin, a file or a socket), rendered face video out."""
 
 import argparse
+import json
 import sys
 import time
 
@@ -10,22 +11,47 @@ EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
   fd-send talk.mp4 | fd-recv -o - | ffplay -
   fd-recv talk.fd -o out.y4m --size 256 --dump decoded.npz
+  fd-recv --listen udp://:5000 --face me.fdface -o - | ffplay -
+  fd-recv --listen tcp://0.0.0.0:5000 -o call.mp4 --json
 """
 
 
 def parse_args(argv=None) -> argparse.Namespace:
     p = ArgumentParser(
         prog="fd-recv", epilog=EPILOG,
-        description="Decode an fd stream and render the face it carries: the base face mesh is "
-                    "deformed by each frame's parameters and drawn with a Z-buffer and Phong shading.")
-    p.add_argument("input", nargs="?", default="-", help="stream file, or - for stdin (default)")
-    p.add_argument("-o", "--output", default="-", metavar="FILE",
-                   help="video file (.mp4, .mkv, .mov: H.264), .y4m, or - for Y4M on stdout (default)")
+        description="Decode an fd stream and render the face it carries: the face mesh is deformed "
+                    "by each frame's parameters and drawn with a Z-buffer and Phong shading, with the "
+                    "person's own texture when their face model is known.")
+    p.add_argument("input", nargs="?", help="stream file, or - for stdin (default)")
+    p.add_argument("--listen", metavar="URL",
+                   help="receive from the network instead: udp://HOST:PORT (one packet per datagram) or "
+                        "tcp://HOST:PORT (one connection); HOST defaults to 127.0.0.1")
+    p.add_argument("-o", "--output", metavar="FILE",
+                   help="video file (.mp4, .mkv, .mov: H.264), .y4m, or - for Y4M on stdout "
+                        "(default, unless --show)")
     p.add_argument("--size", type=parse_size, default=(512, 512), metavar="WxH",
                    help="output size in pixels, e.g. 512 (default) or 640x480")
+    p.add_argument("--fps", type=float, metavar="N",
+                   help="output frame rate (default: the stream's); frames are repeated or dropped to meet it")
+    p.add_argument("--face", metavar="FILE",
+                   help="the sender's face model (fd-enroll); default: the model the stream carries, "
+                        "else the generic face")
+    p.add_argument("--show", action="store_true", help="also show the video in a window (needs a display)")
+    p.add_argument("--timeout", type=float, default=5.0, metavar="S",
+                   help="with --listen: end after S seconds without data once the stream has started (default 5)")
     p.add_argument("--dump", metavar="FILE.npz", help="also write the decoded parameters of every frame")
-    p.add_argument("-q", "--quiet", action="store_true", help="no statistics on stderr")
-    return p.parse_args(argv)
+    p.add_argument("--json", action="store_true", help="statistics as one JSON object, the last line on stderr")
+    p.add_argument("-q", "--quiet", action="store_true", help="no statistics or progress on stderr")
+    args = p.parse_args(argv)
+    if args.listen and args.input is not None:
+        p.error("give an input file or --listen URL, not both")
+    if args.fps is not None and not 0 < args.fps <= 1000:
+        p.error("--fps must be above 0 and at most 1000")
+    if args.timeout <= 0:
+        p.error("--timeout must be positive")
+    if args.output is None and not args.show:
+        args.output = "-"
+    return args
 
 
 def main(argv=None) -> int:
@@ -35,33 +61,44 @@ def main(argv=None) -> int:
 
 def _run(args) -> int:
     from codec.errors import InputError
+    from codec.face_file import load_face_file
+    from receiver.output import Display, open_writer
+    from receiver.progress import progress_for
     from receiver.session import ReceiveSession
+    from receiver.transport import Listener, open_file
 
     if args.output == "-" and sys.stdout.isatty():
         raise InputError("refusing to write video to a terminal: use -o FILE.mp4 or pipe it (| ffplay -)")
-    source = _open_input(args.input)
-    session = ReceiveSession(args.output, args.size, sys.stdout.buffer)
+    face = load_face_file(args.face) if args.face else None
+    display = Display() if args.show else None
+
+    def open_sinks(fps: float) -> list:
+        sinks = [open_writer(args.output, fps, args.size, sys.stdout.buffer)] if args.output else []
+        return sinks + ([display] if display else [])
+
+    listener = Listener(args.listen, args.timeout) if args.listen else None
+    if listener and not args.quiet:
+        print(f"fd-recv: listening on {listener.url}", file=sys.stderr, flush=True)
+    source = listener.source() if listener else open_file(args.input or "-", sys.stdin.buffer)
+    session = ReceiveSession(open_sinks, args.size, face, f"--face {args.face}", args.fps)
+    progress = progress_for("fd-recv", args.quiet or args.json) if source.size else None
+    update = (lambda: progress.update(source.consumed, source.size, f"{len(session.decoded)} frames")) \
+        if progress else None
     started = time.perf_counter()
     try:
-        session.run(source)
+        session.run(source, update)
     finally:
+        if progress:
+            progress.close()
         session.close()
         if args.dump and session.decoded:
             session.write_dump(args.dump)
-        if not args.quiet and session.decoded:
-            print("fd-recv: " + session.summary(time.perf_counter() - started), file=sys.stderr)
+        if session.decoded:
+            if args.json:
+                print(json.dumps(session.stats(time.perf_counter() - started)), file=sys.stderr)
+            elif not args.quiet:
+                print("fd-recv: " + session.summary(time.perf_counter() - started), file=sys.stderr)
     return 0
-
-
-def _open_input(path: str):
-    from codec.errors import InputError
-
-    if path == "-":
-        return sys.stdin.buffer
-    try:
-        return open(path, "rb")
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
 
 
 if __name__ == "__main__":

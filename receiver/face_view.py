@@ -23,22 +23,26 @@ def portrait_camera(face: BaseFace) -> Camera:
 
 
 def face_renderer(face: BaseFace, size: tuple[int, int]) -> Renderer:
-    """The receiver's look: the default material and lights, dark mouth and painted eyes."""
+    """The receiver's look: the default lights, dark mouth and painted eyes; the face's own
+    texture when it has one (a personal model), else the plain shaded material."""
+    textured = face.texture is not None
     return Renderer(face.faces, size=size, mouth_faces=face.mouth_faces, eye_faces=face.eye_faces,
-                    background=BACKGROUND)
+                    background=BACKGROUND, uv=face.uv if textured else None, texture=face.texture)
 
 
 class FaceView:
     """Renders one (H, W, 3) uint8 RGB image per parameter vector of the stream's layout.
 
     A layout is any list of names from ``codec.deform.EXTENDED_PARAMS``; the
-    parameters a stream leaves out stay at rest.
+    parameters a stream leaves out stay at rest. ``check_id=False`` draws a
+    face other than the one the stream names (the receiver's fallback when an
+    in-band model was lost).
     """
 
-    def __init__(self, header: Header, face: BaseFace, size: tuple[int, int]) -> None:
-        if header.face_id != face.content_id:
+    def __init__(self, header: Header, face: BaseFace, size: tuple[int, int], check_id: bool = True) -> None:
+        if check_id and header.face_id != face.content_id:
             raise BitstreamError(f"the stream was made for face model {header.face_id[:12]}, "
-                                 f"this receiver holds {face.content_id[:12]}")
+                                 f"this receiver holds {face.content_id[:12]} (give the model with --face FILE)")
         unknown = [n for n in header.names if n not in EXTENDED_PARAMS]
         if unknown or len(set(header.names)) != len(header.names):
             raise BitstreamError(f"unknown parameter layout: {', '.join(header.names)}")

@@ -1,72 +1,158 @@
-"""One receiving session: stream bytes in, frames out as soon as each packet is complete."""
+"""One receiving session: decoded events in, frames rendered and written as soon as each packet is complete."""
 
+import math
 import sys
+import time
+from fractions import Fraction
 
 import numpy as np
 
-from codec.errors import BitstreamError
-from codec.face_model import load_base_face
-from protocol.stream import Damage, End, Frame, Header, StreamDecoder
+from codec.errors import BitstreamError, InputError
+from codec.face_file import decode_face
+from codec.face_model import BaseFace, load_base_face
+from protocol.stream import Damage, End, Frame, Header, Model
 from receiver.face_view import FaceView
-from receiver.output import open_writer
-
-CHUNK = 1 << 16
 
 
 class ReceiveSession:
-    """Decodes, renders and writes; frames already written survive a broken stream.
+    """Chooses the face, renders every frame, writes it to the sinks, and keeps statistics.
 
-    Damage inside the stream is reported on stderr as it happens and concealed
-    until the next keyframe; a stream that stops short raises once its last
-    whole frame is written.
+    open_sinks(fps) -> list of objects with write((H, W, 3) uint8 RGB) and
+    close(), called once the header gives the rate; face: the model the user
+    gave (``--face``), whose id must be the stream's; without it the model the
+    stream carries, else the generic face. fps: output rate (None: the
+    stream's), met by repeating or dropping frames. Damage is reported through
+    ``warn`` and concealed until the next keyframe; frames already written
+    survive a broken stream.
     """
 
-    def __init__(self, target: str, size: tuple[int, int], stdout, warn=None) -> None:
-        self._target, self._size, self._stdout = target, size, stdout
+    def __init__(self, open_sinks, size: tuple[int, int], face: BaseFace | None = None,
+                 face_name: str = "--face", fps: float | None = None, warn=None) -> None:
+        self._open_sinks, self._size, self._given, self._given_name = open_sinks, size, face, face_name
+        self._fps = fps
         self._warn = warn or (lambda line: print(f"fd-recv: warning: {line}", file=sys.stderr))
-        self._decoder = StreamDecoder()
-        self._writer = None
+        self._sinks: list = []
+        self._header: Header | None = None
         self._view: FaceView | None = None
+        self._ratio = Fraction(1)
+        self.source = None
+        self.face_kind = self.face_id = None
         self.decoded: list[Frame] = []
+        self.latency: list[float] = []  # seconds from the arrival of a frame's packet to its output
+        self.written = 0
 
-    def run(self, source) -> None:
-        """Reads ``source`` (a binary file object) to its end, rendering every frame."""
-        read = getattr(source, "read1", source.read)
-        while chunk := read(CHUNK):
-            for event in self._decoder.feed(chunk):
-                self._handle(event)
-        for event in self._decoder.close():
-            if not isinstance(event, Damage):  # the end's damage is the truncation, raised below
-                self._handle(event)
-        if not self._decoder.ended:
+    def run(self, source, on_batch=None) -> None:
+        """Consumes ``source`` (receiver.transport) to its end; ``on_batch()`` after each arrival.
+
+        Raises BitstreamError for a byte stream cut short (after writing what
+        arrived); a socket that went quiet ends with a warning instead.
+        """
+        self.source = source
+        for events, arrived in source.batches():
+            for event in events:
+                self._handle(event, arrived)
+            if on_batch is not None:
+                on_batch()
+        decoder = source.decoder
+        if decoder.header is None:
+            raise BitstreamError("no fd stream arrived (no valid header)")
+        if decoder.ended:
+            return
+        if source.timed_out:
+            self._warn(f"nothing arrived for a while: ending after {len(self.decoded)} frames, "
+                       "without the stream's end mark")
+        else:
             raise BitstreamError(f"truncated stream: it stopped after {len(self.decoded)} frames, "
                                  "before its end mark")
 
-    def _handle(self, event) -> None:
+    def _handle(self, event, arrived: float) -> None:
         if isinstance(event, Header):
-            self._view = FaceView(event, load_base_face(), self._size)
-            self._writer = open_writer(self._target, event.fps, self._size, self._stdout)
+            self._start(event)
+        elif isinstance(event, Model):
+            if self._view is None:
+                self._use_model(event.data)
         elif isinstance(event, Frame):
-            self._writer.write(self._view.render(event.params))
-            self.decoded.append(event)
+            self._frame(event, arrived)
         elif isinstance(event, Damage):
             self._warn(f"damaged stream at frame {event.seq} ({event.reason}): "
                        "holding the last frame until the next keyframe")
         elif isinstance(event, End) and event.frames != len(self.decoded):
             raise BitstreamError(f"stream says {event.frames} frames, {len(self.decoded)} arrived")
 
+    def _start(self, header: Header) -> None:
+        self._header = header
+        out = self._fps or header.fps
+        self._ratio = Fraction(out).limit_denominator(1001) / Fraction(header.fps).limit_denominator(1001)
+        if self._given is not None:
+            if header.face_id != self._given.content_id:
+                raise InputError(f"{self._given_name} is face model {self._given.content_id[:12]}, "
+                                 f"the stream was made for {header.face_id[:12]}")
+            self._show(self._given, "file")
+        elif not header.model_size:
+            self._show(load_base_face(), "generic")
+        # else: the model follows in-band, before the first frame
+        self._sinks = self._open_sinks(out)
+
+    def _use_model(self, data: bytes) -> None:
+        face = decode_face(data, "the stream's face model")
+        if face.content_id != self._header.face_id:
+            raise BitstreamError("the stream's face model does not match the face id in its header")
+        self._show(face, "stream")
+
+    def _show(self, face: BaseFace, kind: str, check_id: bool = True) -> None:
+        self._view = FaceView(self._header, face, self._size, check_id)
+        self._view.render(np.zeros(len(self._header.names)))  # compile and warm up before frames arrive
+        self.face_kind, self.face_id = kind, face.content_id
+
+    def _frame(self, frame: Frame, arrived: float) -> None:
+        if self._view is None:  # a datagram of the in-band model was lost
+            self._warn("the stream's face model did not arrive whole: drawing the generic face")
+            self._show(load_base_face(), "generic", check_id=False)
+        self.decoded.append(frame)
+        # output frames whose time falls in this frame's interval: 1 at the stream's rate
+        repeats = math.ceil((frame.seq + 1) * self._ratio) - math.ceil(frame.seq * self._ratio)
+        if not repeats:
+            return
+        image = self._view.render(frame.params)
+        for _ in range(repeats):
+            for sink in self._sinks:
+                sink.write(image)
+        self.written += repeats
+        self.latency.append(time.perf_counter() - arrived)
+
     def close(self) -> None:
-        if self._writer is not None:
-            self._writer.close()
+        for sink in self._sinks:
+            sink.close()
+
+    def stats(self, seconds: float) -> dict:
+        """Frames decoded, written, concealed and interpolated, decoder counters, latency in ms."""
+        s = self.source.decoder.stats if self.source is not None else None
+        ms = np.array(self.latency) * 1000 if self.latency else np.zeros(1)
+        return {
+            "frames": len(self.decoded), "written": self.written,
+            "concealed": sum(f.concealed for f in self.decoded),
+            "interpolated": sum(f.interpolated for f in self.decoded),
+            "damage_reports": s.damaged if s else 0, "packets": s.packets if s else 0,
+            "duplicates": s.duplicates if s else 0, "skipped_bytes": s.skipped_bytes if s else 0,
+            "ended": bool(self.source and self.source.decoder.ended),
+            "fps": self._header.fps if self._header else None,
+            "output_fps": float(self._fps or self._header.fps) if self._header else None,
+            "face": self.face_kind, "face_id": self.face_id,
+            "latency_ms": {"median": round(float(np.median(ms)), 2), "p95": round(float(np.percentile(ms, 95)), 2),
+                           "max": round(float(ms.max()), 2)},
+            "frames_per_second": round(len(self.decoded) / max(seconds, 1e-9), 1),
+        }
 
     def summary(self, seconds: float) -> str:
-        n = len(self.decoded)
-        concealed = sum(f.concealed for f in self.decoded)
-        return (f"{n} frames rendered ({concealed} concealed, {self._decoder.stats.damaged} damage reports), "
-                f"{n / max(seconds, 1e-9):.1f} frames/s")
+        s = self.stats(seconds)
+        return (f"{s['frames']} frames rendered ({s['concealed']} concealed, {s['damage_reports']} damage reports), "
+                f"{s['written']} written at {s['output_fps']:g} fps, {s['face']} face, latency "
+                f"{s['latency_ms']['median']:.1f} ms median, {s['latency_ms']['max']:.1f} ms max, "
+                f"{s['frames_per_second']:.1f} frames/s")
 
     def write_dump(self, path: str) -> None:
-        header = self._decoder.header
+        """Per decoded frame: parameters, frame number and flags; the layout and rate."""
+        header = self._header
         np.savez_compressed(
             path, params=np.array([f.params for f in self.decoded]), names=np.array(header.names),
             seq=np.array([f.seq for f in self.decoded]), face_seen=np.array([f.face_seen for f in self.decoded]),

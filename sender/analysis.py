@@ -1,8 +1,9 @@
-"""Frames -> landmarks -> pose -> parameters, with calibration and face loss.
+"""Frames -> landmarks -> pose -> parameters, with calibration, smoothing and face loss.
 
-The first second of video with a face is buffered to find the person's rest
-face (the frame with the mouth most closed); afterwards every frame comes out
-as soon as it goes in.
+Frames are buffered until the rest face is known (the first second with a
+face, or up to the ``neutral`` frame); afterwards every frame comes out as soon
+as it goes in. Smoothing (One Euro) is applied either to the pose-free
+landmarks before the fit or to the parameters after it (``Smoothing.stage``).
 """
 
 from collections.abc import Iterable, Iterator
@@ -10,72 +11,177 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from codec.deform import HEAD_DEPTH, PAPER_PARAMS, POSE_PARAMS, Deformer
 from codec.errors import NoFaceError
-from sender.estimate import ParameterEstimator, lip_gap
+from codec.face_model import BaseFace
+from codec.upper_face import UPPER_PARAMS
+from protocol.quantise import VECTOR_STEP, steps_for
+from sender.calibrate import RestFace, choose_rest, fapu_ratios
+from sender.fit import ModelFit
 from sender.pose import STABLE_LANDMARKS, Pose, fit_pose, image_to_face_axes
+from sender.smoothing import OneEuroFilter
 
 #: Per frame without a face, the parameters keep this fraction of their value: the face relaxes to rest.
 RELAX = 0.8
+LAYOUTS = {
+    "paper": PAPER_PARAMS + POSE_PARAMS[:3],
+    "full": PAPER_PARAMS + UPPER_PARAMS + POSE_PARAMS,
+}
+#: How far the receiver's camera is from the face (base-face units), to turn scale changes into depth.
+VIEW_DISTANCE = 3.9
+
+
+@dataclass(frozen=True)
+class Smoothing:
+    """One Euro settings; ``strength`` divides both the cutoff and the speed gain (0: off).
+
+    stage "landmarks" filters the pose-free landmarks and the pose before the
+    fit; "params" filters the fitted parameters. ``hold`` is a dead band on the
+    output: a still face then sends the same numbers frame after frame. Units
+    are quantiser steps at the default quality.
+    """
+
+    strength: float = 1.0
+    stage: str = "landmarks"
+    min_cutoff: float = 1.0
+    beta: float = 0.05
+    hold: float = 1.0  # a parameter moves only when it would move this many steps (times strength)
+
+    def filter(self, rate: float, scale) -> OneEuroFilter | None:
+        if self.strength <= 0:
+            return None
+        return OneEuroFilter(rate, scale, self.min_cutoff / self.strength, self.beta / self.strength)
 
 
 @dataclass(frozen=True)
 class FrameAnalysis:
     landmarks: np.ndarray | None  # (468, 3) float32 tracker output in pixels, None without a face
     pose: Pose | None
-    params: np.ndarray  # (k,) float64 paper parameters then head rotation vector (degrees)
+    params: np.ndarray  # (k,) float64 in the analyser's ``names`` order
+    target: np.ndarray | None = None  # (468, 3) observed pose-free face in base-face units (RestFace.target)
 
 
 class FaceAnalyser:
-    """Runs a tracker and an estimator over frames; yields one :class:`FrameAnalysis` per frame."""
+    """Runs a tracker and the model fit over frames; yields one :class:`FrameAnalysis` per frame.
 
-    def __init__(self, tracker, estimator: ParameterEstimator, base_vertices: np.ndarray,
-                 calibration_frames: int) -> None:
+    layout: "paper" (the paper's 13 and head rotation) or "full" (plus brows,
+    lids, cheeks and head translation); calibration_frames: how many frames with
+    a face to choose the rest face from; neutral: a frame index to use instead.
+    """
+
+    def __init__(self, tracker, face: BaseFace, fps: float, layout: str = "paper",
+                 calibration_frames: int = 25, neutral: int | None = None,
+                 smoothing: Smoothing = Smoothing()) -> None:
         self._tracker = tracker
-        self._estimator = estimator
+        self._face = face
+        self._base = np.asarray(face.vertices, dtype=np.float64)
+        self.fit = ModelFit(Deformer(face))
         self._stable = list(STABLE_LANDMARKS)
-        self._reference = base_vertices[self._stable]
+        self._reference = self._base[self._stable]
+        self._pivot = 0.5 * (self._base.min(axis=0) + self._base.max(axis=0)) - [0.0, 0.0, HEAD_DEPTH]
         self._calibration_frames = max(1, calibration_frames)
-        self.names = estimator.names + ("rx", "ry", "rz")
+        self._neutral = neutral
+        self.names = LAYOUTS[layout]
+        self._upper = layout == "full"
+        self._translate = "tx" in self.names
+        self.rest: RestFace | None = None
+        self._rest_pose: Pose | None = None
+        steps = steps_for(self.names)
+        on_landmarks = smoothing.stage == "landmarks"
+        self._landmark_filter = smoothing.filter(fps, VECTOR_STEP) if on_landmarks else None
+        self._pose_filter = smoothing.filter(fps, steps[-len(self._pose_names()):]) if on_landmarks else None
+        self._param_filter = None if on_landmarks else smoothing.filter(fps, steps)
+        self._hold = smoothing.hold * smoothing.strength * steps
+        self._held: np.ndarray | None = None
         self.frames_without_face = 0
+
+    def _pose_names(self) -> tuple[str, ...]:
+        return POSE_PARAMS if self._translate else POSE_PARAMS[:3]
 
     def run(self, frames: Iterable[np.ndarray]) -> Iterator[FrameAnalysis]:
         pending: list[tuple[np.ndarray | None, Pose | None, np.ndarray | None]] = []
         previous = np.zeros(len(self.names))
-        for frame in frames:
+        for index, frame in enumerate(frames):
             landmarks = self._tracker.track(frame)
             pose = aligned = None
             if landmarks is not None:
-                points = image_to_face_axes(landmarks)
-                pose = fit_pose(points[self._stable], self._reference)
-                aligned = pose.apply(points)
+                pose, aligned = self._align(landmarks)
             else:
                 self.frames_without_face += 1
-            if self._estimator.neutral is None:
+            if self.rest is None:
                 pending.append((landmarks, pose, aligned))
-                if sum(a is not None for *_, a in pending) < self._calibration_frames:
+                if not self._ready(pending, index):
                     continue
                 self._calibrate(pending)
                 for item in pending:
-                    previous = self._params(item[1], item[2], previous)
-                    yield FrameAnalysis(item[0], item[1], previous)
+                    previous, target = self._params(item[1], item[2], previous)
+                    yield FrameAnalysis(item[0], item[1], previous, target)
                 pending = []
                 continue
-            previous = self._params(pose, aligned, previous)
-            yield FrameAnalysis(landmarks, pose, previous)
+            previous, target = self._params(pose, aligned, previous)
+            yield FrameAnalysis(landmarks, pose, previous, target)
         if pending:
             if all(a is None for *_, a in pending):
                 raise NoFaceError("no face found in any frame")
             self._calibrate(pending)
             for item in pending:
-                previous = self._params(item[1], item[2], previous)
-                yield FrameAnalysis(item[0], item[1], previous)
+                previous, target = self._params(item[1], item[2], previous)
+                yield FrameAnalysis(item[0], item[1], previous, target)
 
-    def _calibrate(self, pending) -> None:
-        faces = [(lm, a) for lm, _, a in pending if a is not None]
-        rest = min(faces, key=lambda item: lip_gap(item[0]))
-        self._estimator.set_neutral(rest[1])
+    def _align(self, landmarks: np.ndarray) -> tuple[Pose, np.ndarray]:
+        points = image_to_face_axes(landmarks)
+        pose = fit_pose(points[self._stable], self._reference)
+        return pose, pose.apply(points)
 
-    def _params(self, pose: Pose | None, aligned: np.ndarray | None, previous: np.ndarray) -> np.ndarray:
+    def _ready(self, pending: list, index: int) -> bool:
+        if self._neutral is not None:
+            return index >= self._neutral
+        return sum(a is not None for *_, a in pending) >= self._calibration_frames
+
+    def _calibrate(self, pending: list) -> None:
+        candidates = [(i, lm, a) for i, (lm, _, a) in enumerate(pending) if a is not None]
+        if not candidates:
+            raise NoFaceError("no face found in any frame")
+        index = choose_rest(candidates, self._neutral)
+        landmarks, pose, aligned = pending[index]
+        self.rest = RestFace(aligned, fapu_ratios(aligned, self._face), index)
+        self._rest_pose = pose
+
+    def _params(self, pose: Pose | None, aligned: np.ndarray | None,
+                previous: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """(k,) parameters and the (468, 3) unsmoothed target they were fitted to (None without a face)."""
+        filters = (self._landmark_filter, self._pose_filter, self._param_filter)
         if aligned is None:
-            return previous * RELAX
-        return np.concatenate([self._estimator.estimate(aligned), pose.head_rotation_vector()])
+            for f in filters:
+                if f is not None:
+                    f.reset()
+            self._held = None
+            return previous * RELAX, None
+        observed = target = self.rest.target(aligned, self._base)
+        head = self._head(pose)
+        if self._landmark_filter is not None:
+            target = self._landmark_filter(target)
+            head = self._pose_filter(head)
+        parts = [self.fit.paper(target)]
+        if self._upper:
+            parts.append(self.fit.upper(target))
+        params = np.concatenate(parts + [head])
+        if self._param_filter is not None:
+            params = self._param_filter(params)
+        if self._held is not None:
+            params = np.where(np.abs(params - self._held) < self._hold, self._held, params)
+        self._held = params
+        return params, observed
+
+    def _head(self, pose: Pose) -> np.ndarray:
+        """Head rotation vector (degrees) as the camera sees it and, in the full layout, the
+        translation (base-face units) of the receiver's head pivot since the rest frame."""
+        rotation = pose.head_rotation_vector()
+        if not self._translate:
+            return rotation
+        rest = self._rest_pose
+        seen = (self._pivot - pose.translation) @ pose.rotation / pose.scale  # pivot in camera axes
+        seen_rest = (self._pivot - rest.translation) @ rest.rotation / rest.scale
+        shift = rest.scale * (seen - seen_rest)
+        shift[2] = VIEW_DISTANCE * (1.0 - pose.scale / rest.scale)  # nearer: larger in the image
+        return np.concatenate([rotation, shift])

@@ -1,35 +1,60 @@
-"""fd-send: a video of a talking face in, an fd stream out (stdout by default)."""
+"""fd-send: a talking face in (video file, image sequence or camera), an fd stream out."""
 
 import argparse
+import json
 import sys
-import time
 
 from codec.cli import ArgumentParser, run_main
 
 EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
-  fd-send talk.mp4 -o talk.fd --dump talk-params.npz
+  fd-send talk.mp4 -o talk.fd --dump talk-params.npz --params full
+  fd-send frames/%04d.png --fps 30 -o tcp://127.0.0.1:5000
+  fd-send --camera 0 -o udp://127.0.0.1:5000
 """
 
 
 def parse_args(argv=None) -> argparse.Namespace:
     p = ArgumentParser(
         prog="fd-send", epilog=EPILOG,
-        description="Track a talking face in a video and send its motion as a few numbers per frame: "
-                    "the jaw angle and the displacement of four mouth points (Akimoto, Mase and "
-                    "Suenaga's model) plus head rotation.")
-    p.add_argument("input", help="video file (anything OpenCV reads: mp4, mpg, avi, ...)")
-    p.add_argument("-o", "--output", default="-", metavar="FILE",
-                   help="where the stream goes: a file, or - for stdout (default)")
+        description="Track a talking face and send its motion as a few numbers per frame: the jaw "
+                    "angle and the displacement of four mouth points (Akimoto, Mase and Suenaga's "
+                    "model) plus head rotation, or with --params full also brows, lids, cheeks and "
+                    "head translation.")
+    p.add_argument("input", nargs="?",
+                   help="video file (anything OpenCV or PyAV reads), a directory of images, "
+                        "or a numbered pattern such as frames/%%04d.png")
+    p.add_argument("--camera", type=int, metavar="N", help="read camera N instead of a file (Ctrl-C stops)")
+    p.add_argument("--fps", type=float, default=25.0, help="frame rate of an image sequence (default 25)")
+    p.add_argument("-o", "--output", default="-", metavar="DEST",
+                   help="a file, - for stdout (default), tcp://HOST:PORT (connect and write the stream) "
+                        "or udp://HOST:PORT (one packet per datagram)")
+    p.add_argument("--params", choices=("paper", "full"), default="paper",
+                   help="paper: the paper's 13 parameters and head rotation (default); "
+                        "full: plus brows, lids, cheeks and head translation")
+    p.add_argument("--neutral", type=int, metavar="FRAME",
+                   help="frame index (from 0) of the person's rest face; default: the frame of the "
+                        "first second with the mouth most closed")
+    p.add_argument("--smoothing", type=float, default=1.0, metavar="S",
+                   help="temporal smoothing strength: 0 off, 1 default, 2 twice as strong "
+                        "(steadier and cheaper, slower to follow)")
     p.add_argument("--quality", type=int, choices=range(1, 6), default=3, metavar="1-5",
                    help="quantiser fineness, 1 (coarse, fewest bits) to 5 (fine); each level halves the "
                         "steps of the one below (default 3: 0.25 degree, 0.002 face heights)")
     p.add_argument("--frames-per-packet", type=int, choices=range(1, 33), default=2, metavar="N",
                    help="frames sent together (1-32): fewer framing bits, N-1 frames more latency (default 2)")
     p.add_argument("--dump", metavar="FILE.npz",
-                   help="also write per-frame landmarks, head pose and unquantised parameters")
+                   help="also write per-frame landmarks, pose-free targets, head pose and unquantised parameters")
+    p.add_argument("--json", action="store_true", help="statistics as one JSON object on stderr")
     p.add_argument("-q", "--quiet", action="store_true", help="no statistics on stderr")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if (args.input is None) == (args.camera is None):
+        p.error("give an input file or --camera N (one of them)")
+    if args.neutral is not None and args.neutral < 0:
+        p.error("--neutral takes a frame index from 0")
+    if args.smoothing < 0:
+        p.error("--smoothing must be 0 or more")
+    return args
 
 
 def main(argv=None) -> int:
@@ -38,35 +63,32 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    from codec.errors import InputError
     from sender.session import SendSession
+    from sender.sources import open_source
+    from sender.transport import open_sink
 
-    if args.output == "-" and sys.stdout.isatty():
-        raise InputError("refusing to write a binary stream to a terminal: pipe it (| fd-recv) or use -o FILE")
-    out = sys.stdout.buffer if args.output == "-" else _open_output(args.output)
-    started = time.perf_counter()
-    session = SendSession(args.input, args.quality, args.frames_per_packet)
+    source = open_source(args.input, args.camera, args.fps)
+    session = SendSession(source, args.quality, args.frames_per_packet, args.params,
+                          args.neutral, args.smoothing)
+    sink = None
     try:
-        for chunk in session.stream():
-            out.write(chunk)
-            out.flush()
+        for packets in session.packets():
+            if sink is None:  # opened only once there is something to send
+                sink = open_sink(args.output)
+            sink.write(packets)
+    except KeyboardInterrupt:  # a camera runs until stopped: close the stream properly
+        if sink is not None:
+            sink.write(session.end())
     finally:
-        if out is not sys.stdout.buffer:
-            out.close()
+        if sink is not None:
+            sink.close()
         if args.dump and session.frames:
             session.write_dump(args.dump)
-    if not args.quiet:
-        print("fd-send: " + session.summary(time.perf_counter() - started), file=sys.stderr)
+    if args.json:
+        print(json.dumps(session.stats()), file=sys.stderr)
+    elif not args.quiet:
+        print("fd-send: " + session.summary(), file=sys.stderr)
     return 0
-
-
-def _open_output(path: str):
-    from codec.errors import InputError
-
-    try:
-        return open(path, "wb")
-    except OSError as exc:
-        raise InputError(f"{path}: cannot write ({exc.strerror})") from None
 
 
 if __name__ == "__main__":

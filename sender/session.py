@@ -1,71 +1,108 @@
-"""One sending session: video file -> stream bytes, plus statistics and the research dump."""
+"""One sending session: a source of frames -> packets, plus statistics and the research dump."""
 
+import time
 from collections.abc import Iterator
 
 import numpy as np
 
-from codec.deform import Deformer
 from codec.face_model import load_base_face
-from protocol.stream import DEFAULT_QUALITY, Header, StreamEncoder, steps_for
-from sender.analysis import FaceAnalyser, FrameAnalysis
-from sender.estimate import ParameterEstimator
-from sender.video import VideoSource
+from protocol.stream import DEFAULT_QUALITY, Header, PacketEncoder, frame_bytes, steps_for
+from sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
+from sender.sources import open_source
 
 
 class SendSession:
-    """Opens the video and the models; :meth:`stream` yields the stream's bytes as frames are analysed."""
+    """Opens the source and the models; :meth:`packets` yields the packets as frames are analysed.
 
-    def __init__(self, video_path: str, quality: int = DEFAULT_QUALITY, frames_per_packet: int = 2) -> None:
+    source: a path (video file, image directory or %d pattern) or an opened
+    source (``sender.sources``); layout: "paper" or "full" (``analysis.LAYOUTS``);
+    neutral: the rest frame's index (default: chosen in the first second);
+    smoothing: One Euro strength (0: off).
+    """
+
+    def __init__(self, source, quality: int = DEFAULT_QUALITY, frames_per_packet: int = 2,
+                 layout: str = "paper", neutral: int | None = None, smoothing: float = 1.0) -> None:
         from sender.tracker import FaceTracker
 
-        self.video = VideoSource(video_path)
+        self.source = open_source(source) if isinstance(source, str) else source
         face = load_base_face()
-        estimator = ParameterEstimator(face, Deformer(face))
-        self.analyser = FaceAnalyser(FaceTracker(), estimator, face.vertices,
-                                     calibration_frames=round(self.video.fps))
+        fps = self.source.fps
+        self.analyser = FaceAnalyser(FaceTracker(), face, fps, layout, calibration_frames=round(fps),
+                                     neutral=neutral, smoothing=Smoothing(smoothing))
         names = self.analyser.names
-        self.header = Header(self.video.fps, names, steps_for(names, quality), face.content_id,
-                             quality=quality, key_interval=max(1, min(255, round(self.video.fps))))
-        self.encoder = StreamEncoder(self.header, frames_per_packet)
+        self.header = Header(fps, names, steps_for(names, quality), face.content_id,
+                             quality=quality, key_interval=max(1, min(255, round(fps))))
+        self.encoder = PacketEncoder(self.header, frames_per_packet)
         self.frames: list[FrameAnalysis] = []
-        self.stream_bytes = 0
+        self.stream_bytes = 0  # as a byte stream (sync bytes included), header excluded
         self.header_bytes = 0
+        self._ended = False
+        self._started = time.perf_counter()
 
-    def stream(self) -> Iterator[bytes]:
-        for seq, result in enumerate(self.analyser.run(self.video.frames())):
-            if seq == 0:  # only once a face is known: a clip without one writes nothing
+    def packets(self) -> Iterator[list[bytes]]:
+        """Lists of packets: the header once a face is known (a clip without one sends nothing),
+        then what each frame completes, then the end mark."""
+        for seq, result in enumerate(self.analyser.run(self.source.frames())):
+            if seq == 0:
                 header = self.encoder.header()
-                self.header_bytes = len(header)
+                self.header_bytes = len(frame_bytes(header))
                 yield header
             self.frames.append(result)
-            packet = self.encoder.frame(result.params, result.landmarks is not None)
-            self.stream_bytes += len(packet)
-            if packet:
-                yield packet
-        end = self.encoder.end()
-        self.stream_bytes += len(end)
-        yield end
+            packets = self.encoder.frame(result.params, result.landmarks is not None)
+            self.stream_bytes += len(frame_bytes(packets))
+            if packets:
+                yield packets
+        yield self.end()
 
-    def summary(self, seconds: float) -> str:
+    def end(self) -> list[bytes]:
+        """The end mark (and the last pending packet), once; [] if already sent or nothing was."""
+        if self._ended or not self.frames:
+            return []
+        self._ended = True
+        packets = self.encoder.end()
+        self.stream_bytes += len(frame_bytes(packets))
+        return packets
+
+    def stream(self) -> Iterator[bytes]:
+        """The same as a byte stream."""
+        for packets in self.packets():
+            if packets:
+                yield frame_bytes(packets)
+
+    def stats(self) -> dict:
+        """Frames, frames without a face, bits per frame, bit rate, processing speed, rest frame."""
         n = len(self.frames)
         bits = 8 * self.stream_bytes / max(n, 1)
-        return (f"{n} frames ({self.analyser.frames_without_face} without a face), "
-                f"{bits:.0f} bits/frame, {bits * self.video.fps / 1000:.2f} kbit/s at {self.video.fps:g} fps "
-                f"(+{self.header_bytes} header bytes), {n / max(seconds, 1e-9):.1f} frames/s")
+        rest = self.analyser.rest
+        return {"frames": n, "frames_without_face": self.analyser.frames_without_face,
+                "bits_per_frame": round(bits, 1), "kbit_per_s": round(bits * self.source.fps / 1000, 3),
+                "fps": self.source.fps, "header_bytes": self.header_bytes, "layout": list(self.header.names),
+                "rest_frame": None if rest is None else rest.index,
+                "frames_per_second": round(n / max(time.perf_counter() - self._started, 1e-9), 1)}
+
+    def summary(self) -> str:
+        s = self.stats()
+        return (f"{s['frames']} frames ({s['frames_without_face']} without a face), "
+                f"{s['bits_per_frame']:.0f} bits/frame, {s['kbit_per_s']:.2f} kbit/s at {s['fps']:g} fps "
+                f"(+{s['header_bytes']} header bytes), rest face: frame {s['rest_frame']}, "
+                f"{s['frames_per_second']:.1f} frames/s")
 
     def write_dump(self, path: str) -> None:
-        """Per frame: landmarks (NaN without a face), head pose and unquantised parameters."""
+        """Per frame: landmarks (pixels), pose-free targets (base-face units), head pose (NaN without
+        a face) and unquantised parameters; and the rest frame's index."""
         n = len(self.frames)
         landmarks = np.full((n, 468, 3), np.nan, dtype=np.float32)
+        targets = np.full((n, 468, 3), np.nan, dtype=np.float32)
         rotation = np.full((n, 3, 3), np.nan)
         translation = np.full((n, 3), np.nan)
         scale = np.full(n, np.nan)
         for i, f in enumerate(self.frames):
             if f.landmarks is not None:
-                landmarks[i] = f.landmarks
+                landmarks[i], targets[i] = f.landmarks, f.target
                 rotation[i], translation[i], scale[i] = f.pose.rotation, f.pose.translation, f.pose.scale
         np.savez_compressed(
-            path, landmarks=landmarks, found=np.array([f.landmarks is not None for f in self.frames]),
+            path, landmarks=landmarks, targets=targets, found=np.array([f.landmarks is not None for f in self.frames]),
             pose_rotation=rotation, pose_translation=translation, pose_scale=scale,
             params=np.array([f.params for f in self.frames]), names=np.array(self.header.names),
-            fps=self.video.fps, width=self.video.size[0], height=self.video.size[1])
+            rest_frame=-1 if self.analyser.rest is None else self.analyser.rest.index,
+            fps=self.source.fps, width=self.source.size[0], height=self.source.size[1])

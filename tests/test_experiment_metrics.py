@@ -68,3 +68,16 @@ def test_face_mask_is_the_hull():
     pts = np.array([[10, 10], [50, 10], [50, 40], [10, 40]] + [[30, 25]] * 464, float)
     mask = face_mask(pts, (64, 64))
     assert mask[25, 30] and not mask[5, 5] and mask.sum() == pytest.approx(41 * 31, rel=0.05)
+
+
+def test_alignment_removes_a_similarity_but_not_a_change_of_shape():
+    from experiment.metrics import aligned
+
+    ref = track()
+    angle, scale, shift = 0.3, 1.7, np.array([40.0, -25.0])
+    rot = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    moved = ref @ rot.T * scale + shift
+    np.testing.assert_allclose(aligned(moved, ref), ref, atol=1e-9)
+    bent = moved.copy()
+    bent[:, 14] += 30.0
+    assert akd(ref, aligned(bent, ref), MOUTH) > 0.005  # 30 px / 1.7 on one of 40 points, over 80 px

@@ -68,3 +68,21 @@ def test_gaze_moves_the_irises_toward_the_face_own_left():
     v = view(("gaze_yaw",))
     right, ahead, left = (v.render(np.array([g])) for g in (-25.0, 0.0, 25.0))
     assert _pupil_column(right) + 1.0 < _pupil_column(ahead) < _pupil_column(left) - 1.0
+
+
+def test_a_face_with_a_texture_is_drawn_with_it():
+    from dataclasses import replace
+
+    red = np.zeros((32, 32, 3), np.uint8)
+    red[..., 0] = 200
+    image = FaceView(Header(25.0, PAPER_PARAMS, steps_for(PAPER_PARAMS), FACE.content_id),
+                     replace(FACE, texture=red), SIZE).render(np.zeros(13))
+    plain = view(PAPER_PARAMS).render(np.zeros(13))
+    cheek = (slice(40, 56), slice(30, 40))
+    assert image[cheek][..., 0].mean() > 2 * image[cheek][..., 1:].mean()  # red skin, lit
+    assert np.abs(image[cheek].astype(int) - plain[cheek]).mean() > 20
+
+
+def test_a_fallback_face_can_be_drawn_for_another_id():
+    header = Header(25.0, PAPER_PARAMS, steps_for(PAPER_PARAMS), "ab" * 32)
+    assert FaceView(header, FACE, SIZE, check_id=False).render(np.zeros(13)).shape == (96, 96, 3)

@@ -1,0 +1,139 @@
+"""A person's face model as one file, shared before the call or carried in-band.
+
+Layout (little-endian)::
+
+    "FDFACE" | version (1 byte) | 0 | JSON length (u32) | JSON | vertices <f4 (n, 3)
+    | uv <f4 (n, 2) | faces <u2 (m, 3) | texture (JPEG or PNG, may be empty)
+
+The JSON holds the counts (``vertices``, ``faces``, ``texture`` bytes) and the
+feature points, regions and loops (``meta``, as samples/base_face/feature_points.json),
+so a file is complete on its own and the Deformer takes it unchanged. The face
+id is the sha256 of the whole file (``sha256sum face.fdface`` prints it): what
+the stream header names is exactly what the receiver holds, bit for bit.
+"""
+
+import hashlib
+import json
+import struct
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from codec.errors import InputError
+from codec.face_model import N_LANDMARKS, BaseFace, build_face, load_base_face, normalise
+
+MAGIC = b"FDFACE"
+VERSION = 1
+MAX_FILE = 16 << 20  # the stream header's limit for an in-band model
+MAX_FACES = 4096
+MAX_TEXTURE_SIDE = 2048
+_PREFIX = struct.Struct("<6sBBI")
+
+
+def face_id(data: bytes) -> str:
+    """The id of a face file's bytes: their sha256 hex."""
+    return hashlib.sha256(data).hexdigest()
+
+
+def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90) -> bytes:
+    """A face file's bytes; ``face.texture`` (RGB) goes in as ``texture_format`` (.jpg or .png).
+
+    The same face gives the same bytes (and id); a JPEG texture loaded and
+    saved again is re-compressed and so gets a new id.
+    """
+    texture = b""
+    if face.texture is not None:
+        params = [cv2.IMWRITE_JPEG_QUALITY, quality] if texture_format == ".jpg" else []
+        ok, buf = cv2.imencode(texture_format, cv2.cvtColor(face.texture, cv2.COLOR_RGB2BGR), params)
+        if not ok:
+            raise InputError(f"cannot encode the face texture as {texture_format}")
+        texture = buf.tobytes()
+    info = {"vertices": len(face.vertices), "faces": len(face.faces), "texture": len(texture),
+            "meta": face.meta}
+    text = json.dumps(info, sort_keys=True, separators=(",", ":")).encode()
+    return b"".join([
+        _PREFIX.pack(MAGIC, VERSION, 0, len(text)), text,
+        np.ascontiguousarray(face.vertices, dtype="<f4").tobytes(),
+        np.ascontiguousarray(face.uv, dtype="<f4").tobytes(),
+        np.ascontiguousarray(face.faces, dtype="<u2").tobytes(), texture])
+
+
+def personal_face(neutral: np.ndarray, texture: np.ndarray | None = None,
+                  base: BaseFace | None = None) -> bytes:
+    """A face file from a person's (468, 3) pose-free neutral landmarks (base-face axes, e.g.
+    ``sender.pose`` output) and an optional (h, w, 3) uint8 RGB texture in ``base``'s UV layout.
+
+    The landmarks become the vertices, normalised as the base face is (face
+    height 1, bounding box centred), so the receiver's framing fits; topology,
+    UVs and feature points are ``base``'s (default: the generic face).
+    """
+    base = base or load_base_face()
+    neutral = np.asarray(neutral, dtype=np.float64)
+    if neutral.shape != (N_LANDMARKS, 3) or not np.all(np.isfinite(neutral)):
+        raise InputError(f"a face needs ({N_LANDMARKS}, 3) finite landmarks, got {neutral.shape}")
+    if texture is not None and (texture.ndim != 3 or texture.shape[2] != 3 or texture.dtype != np.uint8):
+        raise InputError(f"a face texture must be (h, w, 3) uint8, got {texture.dtype} {texture.shape}")
+    person = build_face(normalise(neutral), base.faces, base.uv, base.meta, "", texture)
+    return encode_face(person)
+
+
+def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
+    """The BaseFace in a face file's bytes, its content_id their sha256; InputError naming
+    ``origin`` (a path, or the stream) if they are not one."""
+    def bad(why: str):
+        return InputError(f"{origin}: not an fd face model ({why})")
+
+    if len(data) > MAX_FILE:
+        raise bad(f"over {MAX_FILE >> 20} MiB")
+    if len(data) < _PREFIX.size or data[:6] != MAGIC:
+        raise bad("no FDFACE mark")
+    _, version, _, n_text = _PREFIX.unpack_from(data)
+    if version != VERSION:
+        raise bad(f"version {version}, this program reads {VERSION}")
+    try:
+        info = json.loads(data[_PREFIX.size:_PREFIX.size + n_text])
+        n, m, n_tex, meta = int(info["vertices"]), int(info["faces"]), int(info["texture"]), info["meta"]
+    except (ValueError, KeyError, TypeError):
+        raise bad("unreadable description") from None
+    if n != N_LANDMARKS or not 0 < m <= MAX_FACES or n_tex < 0:
+        raise bad(f"{n} vertices, {m} triangles")
+    pos = _PREFIX.size + n_text
+    if len(data) != pos + 20 * n + 6 * m + n_tex:
+        raise bad("its length does not match its description")
+    vertices = np.frombuffer(data, "<f4", 3 * n, pos).reshape(n, 3).astype(np.float64)
+    uv = np.frombuffer(data, "<f4", 2 * n, pos + 12 * n).reshape(n, 2).astype(np.float64)
+    faces = np.frombuffer(data, "<u2", 3 * m, pos + 20 * n).reshape(m, 3).astype(np.int32)
+    if not (np.all(np.isfinite(vertices)) and np.all(np.abs(vertices) < 10) and np.all(np.isfinite(uv))
+            and faces.max() < n):
+        raise bad("vertex, texture coordinate or triangle out of range")
+    texture = _decode_texture(data[len(data) - n_tex:], bad) if n_tex else None
+    return build_face(vertices, faces, uv, meta, face_id(data), texture, origin)
+
+
+def _decode_texture(data: bytes, bad) -> np.ndarray:
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if image is None or max(image.shape[:2]) > MAX_TEXTURE_SIDE:
+        raise bad("texture is not a JPEG or PNG image up to 2048 pixels")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def load_face_file(path: str | Path) -> BaseFace:
+    """The face model in a file; InputError (one line) if it is missing or not one."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except IsADirectoryError:
+        raise InputError(f"{path}: not a file") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    return decode_face(data, str(path))
+
+
+def save_face_file(data: bytes, path: str | Path) -> str:
+    """Writes a face file's bytes; returns its id."""
+    try:
+        Path(path).write_bytes(data)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    return face_id(data)

@@ -1,0 +1,76 @@
+"""One run: a clip through one codec at one setting, measured. Each returns a flat row for CSV/JSON.
+
+Our codec runs through its command-line tools, exactly as a user runs it, so a
+row's bytes are the bytes of the stream file the sender wrote.
+"""
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from codec.errors import FdError
+from experiment import metrics
+from experiment.baselines import encode_decode
+from experiment.clips import Clip, read_y4m, track
+from protocol.framing import packet_size
+
+
+def measure(clip: Clip, decoded: list) -> dict:
+    """Keypoint and pixel measures of ``decoded`` frames against the clip (see experiment.metrics)."""
+    ref, dec = clip.landmarks, track(decoded)
+    found = ~(np.isnan(dec).any(axis=(1, 2)) | np.isnan(ref).any(axis=(1, 2)))
+    dec_aligned = np.full(dec.shape[:2] + (2,), np.nan)
+    dec_aligned[found] = metrics.aligned(dec[found], ref[found])
+    masks = [metrics.face_mask(lm, clip.frames[0].shape[:2]) if not np.isnan(lm).any()
+             else np.zeros(clip.frames[0].shape[:2], bool) for lm in ref]
+    return {
+        "faces_found": float((~np.isnan(dec).any(axis=(1, 2))).mean()),
+        "akd": metrics.akd(ref, dec),
+        "akd_aligned": metrics.akd(ref, dec_aligned),
+        "mouth_akd_aligned": metrics.akd(ref, dec_aligned, metrics.MOUTH),
+        "opening_corr": metrics.opening_correlation(ref, dec),
+        "psnr_face": metrics.psnr(clip.frames, decoded, masks),
+        "ssim_face": metrics.ssim(clip.frames, decoded, masks),
+    }
+
+
+def run_ours(clip: Clip, quality: int, layout: str, work: Path) -> tuple[dict, list]:
+    """fd-send then fd-recv on the clip's crop; returns the row and the decoded frames."""
+    size = clip.frames[0].shape[0]
+    stream = Path(work) / f"{clip.name}_{size}_{layout}_q{quality}.fd"
+    started = time.perf_counter()
+    _tool("sender.cli", str(clip.path), "--quality", str(quality), "--params", layout, "-o", str(stream), "-q")
+    encode_s = time.perf_counter() - started
+    started = time.perf_counter()
+    decoded = read_y4m(_tool("receiver.cli", str(stream), "-o", "-", "--size", str(size), "-q"))
+    decode_s = time.perf_counter() - started
+    data = stream.read_bytes()
+    header = 1 + packet_size(data, 1)
+    n = len(clip.frames)
+    row = {"clip": clip.name, "size": size, "codec": f"ours-{layout}", "setting": f"q{quality}",
+           "frames": n, "fps": clip.fps, "stream_bytes": len(data) - header, "oneoff_bytes": header,
+           "bitrate_bps": 8 * (len(data) - header) * clip.fps / n,
+           "encode_fps": n / encode_s, "decode_fps": n / decode_s}
+    return {**row, **measure(clip, decoded)}, decoded
+
+
+def run_baseline(clip: Clip, codec: str, target_bps: int) -> tuple[dict, list]:
+    """A conventional codec at a target bitrate; returns the row and the decoded frames."""
+    coded = encode_decode(clip.frames, clip.fps, codec, target_bps)
+    n = len(clip.frames)
+    row = {"clip": clip.name, "size": clip.frames[0].shape[0], "codec": codec, "setting": f"{target_bps}bps",
+           "frames": n, "fps": clip.fps, "stream_bytes": coded.coded_bytes, "oneoff_bytes": 0,
+           "bitrate_bps": coded.bitrate(clip.fps),
+           "encode_fps": n / coded.encode_seconds, "decode_fps": n / coded.decode_seconds}
+    return {**row, **measure(clip, coded.frames)}, coded.frames
+
+
+def _tool(module: str, *args: str) -> bytes:
+    """Runs one of our command-line tools; its one-line error becomes an FdError here."""
+    done = subprocess.run([sys.executable, "-m", module, *args], capture_output=True)
+    if done.returncode != 0:
+        raise FdError(done.stderr.decode(errors="replace").strip().splitlines()[-1])
+    return done.stdout

@@ -1,0 +1,135 @@
+"""Where the stream comes from: a file or stdin, a TCP connection, or UDP datagrams.
+
+Every source yields ``(events, arrived)`` batches: the decoder's events for one
+chunk or datagram and the ``time.perf_counter()`` at which it arrived, so the
+session can measure each frame's latency from arrival to output. A socket
+source ends when the stream's end mark arrives, when the peer closes (TCP), or
+after ``idle`` seconds without data once the stream has started (a UDP end
+mark can be lost, and a sender can vanish).
+"""
+
+import os
+import socket
+import time
+from collections.abc import Iterator
+from urllib.parse import urlsplit
+
+from codec.errors import InputError
+from protocol.stream import Damage, DatagramDecoder, StreamDecoder
+
+CHUNK = 1 << 16
+DEFAULT_HOST = "127.0.0.1"  # listening on every interface is a choice the user makes by name
+
+
+class ByteSource:
+    """A byte stream (file, stdin, accepted TCP connection) through a :class:`StreamDecoder`.
+
+    read: returns up to n bytes, b"" at the end; raises TimeoutError when idle
+    (sockets). ``size``: total bytes if known (a file), for progress.
+    """
+
+    def __init__(self, read, size: int | None = None, closing=None) -> None:
+        self.decoder = StreamDecoder()
+        self.size, self.consumed = size, 0
+        self.timed_out = False
+        self._read, self._closing = read, closing
+
+    def batches(self) -> Iterator[tuple[list, float]]:
+        try:
+            while not self.decoder.ended:
+                try:
+                    chunk = self._read(CHUNK)
+                except TimeoutError:
+                    self.timed_out = True
+                    break
+                if not chunk:
+                    break
+                self.consumed += len(chunk)
+                yield self.decoder.feed(chunk), time.perf_counter()
+            # the end's damage is the truncation, which the session reports itself
+            yield [e for e in self.decoder.close() if not isinstance(e, Damage)], time.perf_counter()
+        finally:
+            if self._closing is not None:
+                self._closing()
+
+
+def open_file(path: str, stdin) -> ByteSource:
+    """``-`` (the binary ``stdin``) or a stream file."""
+    if path == "-":
+        return ByteSource(getattr(stdin, "read1", stdin.read))
+    try:
+        f = open(path, "rb")
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    return ByteSource(f.read1, os.fstat(f.fileno()).st_size, f.close)
+
+
+class UdpSource:
+    """Datagrams on a bound UDP socket, one packet each, through a :class:`DatagramDecoder`."""
+
+    def __init__(self, sock: socket.socket, idle: float) -> None:
+        self.decoder = DatagramDecoder()
+        self.size = None
+        self.timed_out = False
+        self._sock, self._idle = sock, idle
+
+    def batches(self) -> Iterator[tuple[list, float]]:
+        try:
+            while not self.decoder.ended:
+                try:
+                    data = self._sock.recv(65536)
+                except TimeoutError:
+                    self.timed_out = True
+                    return
+                self._sock.settimeout(self._idle)  # the stream has started: from now on, silence ends it
+                yield self.decoder.receive(data), time.perf_counter()
+        finally:
+            self._sock.close()
+
+
+def parse_listen(url: str) -> tuple[str, str, int]:
+    """``udp://HOST:PORT`` or ``tcp://HOST:PORT`` (HOST may be empty: 127.0.0.1) -> (scheme, host, port)."""
+    parts = urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme not in ("udp", "tcp") or port is None or parts.path not in ("", "/"):
+        raise InputError(f"--listen {url}: expected udp://HOST:PORT or tcp://HOST:PORT")
+    return parts.scheme, parts.hostname or DEFAULT_HOST, port
+
+
+class Listener:
+    """A bound socket for ``--listen``; :meth:`source` waits for the stream (blocking)."""
+
+    def __init__(self, url: str, idle: float) -> None:
+        self.scheme, host, port = parse_listen(url)
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        kind = socket.SOCK_DGRAM if self.scheme == "udp" else socket.SOCK_STREAM
+        self._sock = socket.socket(family, kind)
+        self._idle = idle
+        try:
+            if kind == socket.SOCK_STREAM:  # a port in TIME_WAIT may be reused; one in use still fails
+                self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self._sock.bind((host, port))
+            if kind == socket.SOCK_STREAM:
+                self._sock.listen(1)
+        except OSError as exc:
+            self._sock.close()
+            raise InputError(f"cannot listen on {self.scheme}://{host}:{port} ({exc.strerror or exc})") from None
+        bound = self._sock.getsockname()
+        self.url = f"{self.scheme}://{'[%s]' % bound[0] if family == socket.AF_INET6 else bound[0]}:{bound[1]}"
+
+    def source(self):
+        """UDP: the datagram source at once; TCP: the first connection's bytes, once it is accepted."""
+        if self.scheme == "udp":
+            return UdpSource(self._sock, self._idle)
+        try:
+            conn, _ = self._sock.accept()
+        finally:
+            self._sock.close()
+        conn.settimeout(self._idle)
+        return ByteSource(conn.recv, closing=conn.close)
+
+    def close(self) -> None:
+        self._sock.close()

@@ -1,0 +1,82 @@
+"""The person's rest face, and FAPU-like scales that carry their motion onto the base face.
+
+Parameters are displacements from this person's rest shape. A wide mouth
+opens wider in absolute terms than the base face's; dividing each displacement
+by the person's own facial distances and multiplying by the base face's (as
+MPEG-4 does with its FAPUs: mouth width, mouth-nose separation, eye separation,
+eye-nose separation, eye opening) makes the same numbers mean the same motion
+on any base face.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from codec.errors import InputError
+from codec.face_model import BaseFace
+
+MOUTH_CORNERS = (61, 291)
+SUBNASALE, UPPER_LIP, LOWER_LIP = 2, 13, 14
+NOSE_TIP = 1
+EYES = ((33, 133), (362, 263))  # corners of the face-right and face-left eye
+LIDS = ((159, 145), (386, 374))  # upper and lower lid middles of the same eyes
+RATIO_LIMITS = (0.5, 2.0)  # a ratio outside this is a tracking failure, not a face
+
+
+@dataclass(frozen=True)
+class RestFace:
+    """neutral (468, 3) pose-free rest landmarks; scale (468, 3) base-over-person ratio per
+    landmark and axis; index: the frame it came from."""
+
+    neutral: np.ndarray
+    scale: np.ndarray
+    index: int
+
+    def target(self, aligned: np.ndarray, base: np.ndarray) -> np.ndarray:
+        """(468, 3) pose-free landmarks -> the base face moved as this person moved from rest."""
+        return base + self.scale * (aligned - self.neutral)
+
+
+def fapu_ratios(neutral: np.ndarray, face: BaseFace) -> np.ndarray:
+    """(468, 3) base-over-person ratios: lower face by mouth width (x) and mouth-nose separation (y),
+    upper face by eye separation (x) and eye-nose separation (y), eye loops by eye opening (y);
+    depth by the mean of the two in-plane ratios."""
+    def units(x):
+        d = lambda a, b: float(np.linalg.norm(x[a] - x[b]))
+        eye_mid = [x[list(e)].mean(axis=0) for e in EYES]
+        mw = d(*MOUTH_CORNERS)
+        mns = float(np.linalg.norm(x[SUBNASALE] - x[[UPPER_LIP, LOWER_LIP]].mean(axis=0)))
+        es = float(np.linalg.norm(eye_mid[0] - eye_mid[1]))
+        ens = float(np.linalg.norm(0.5 * (eye_mid[0] + eye_mid[1]) - x[NOSE_TIP]))
+        return np.array([mw, mns, es, ens, d(*LIDS[0]), d(*LIDS[1])])
+
+    r = np.clip(units(face.vertices) / np.maximum(units(neutral), 1e-9), *RATIO_LIMITS)
+    mouth_level = 0.5 * (face.vertices[SUBNASALE, 1] + face.vertices[UPPER_LIP, 1])
+    lower = face.vertices[:, 1] < mouth_level
+    scale = np.empty((len(neutral), 3))
+    scale[:, 0] = np.where(lower, r[0], r[2])
+    scale[:, 1] = np.where(lower, r[1], r[3])
+    for loop, ratio in zip(("eye_right", "eye_left"), r[4:]):
+        scale[face.meta["loops"][loop], 1] = ratio
+    scale[:, 2] = 0.5 * (scale[:, 0] + scale[:, 1])
+    return scale
+
+
+def choose_rest(candidates: list[tuple[int, np.ndarray, np.ndarray]], neutral: int | None = None) -> int:
+    """Index of the rest frame among (frame index, (468, 3) landmarks in pixels, (468, 3) aligned).
+
+    With ``neutral`` that frame (it must hold a face); otherwise the one with the
+    mouth most closed, which for speech is the nearest a clip comes to a rest face.
+    """
+    if neutral is not None:
+        for index, _, _ in candidates:
+            if index == neutral:
+                return index
+        raise InputError(f"--neutral {neutral}: no face tracked in that frame")
+    return min(candidates, key=lambda c: lip_gap(c[1]))[0]
+
+
+def lip_gap(landmarks: np.ndarray) -> float:
+    """Inner-lip gap of (468, 3) landmarks over their inter-ocular distance (a scale-free mouth opening)."""
+    eyes = landmarks[list(EYES[0])].mean(axis=0), landmarks[list(EYES[1])].mean(axis=0)
+    return float(np.linalg.norm(landmarks[UPPER_LIP] - landmarks[LOWER_LIP]) / np.linalg.norm(eyes[0] - eyes[1]))

@@ -1,0 +1,127 @@
+"""fd-enroll: a person's face model from a neutral frame of a video, as one file to share before a call.
+
+The mesh is the person's own landmarks with the head pose removed, the
+texture their skin warped into the mesh's UV layout; the receiver then draws
+them instead of the generic face (``fd-recv --face FILE``).
+"""
+
+import argparse
+import sys
+
+import cv2
+import numpy as np
+
+from codec.cli import ArgumentParser, run_main
+
+EPILOG = """examples:
+  fd-enroll me.mp4 -o me.fdface
+  fd-enroll me.mp4 --frame 12 -o me.fdface
+  fd-send talk.mp4 --face me.fdface | fd-recv --face me.fdface -o out.mp4
+"""
+TEXTURE_SIZE = 256  # texels a side: about 20 KB as JPEG, detail for a 512-pixel rendering
+#: A frame's distance from neutral: lip gap (over eye distance) in units of GAP_UNIT plus head
+#: turn in units of ANGLE_UNIT, so a 0.05 gap (lips visibly parted) weighs as 10 degrees of turn.
+GAP_UNIT, ANGLE_UNIT = 0.05, 10.0
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = ArgumentParser(
+        prog="fd-enroll", epilog=EPILOG,
+        description="Make a person's face model from a video of them: the mesh from their tracked "
+                    "landmarks in a neutral frame, the texture from that frame. Prints the model's id "
+                    "(the sha256 of the file), which streams made for it carry.")
+    p.add_argument("input", help="video file, a directory of images, or a numbered pattern such as f/%%04d.png")
+    p.add_argument("-o", "--output", required=True, metavar="FILE", help="face model to write, e.g. me.fdface")
+    pick = p.add_mutually_exclusive_group()
+    pick.add_argument("--frame", type=int, metavar="N", help="use frame N (from 0), which must show the face")
+    pick.add_argument("--auto", action="store_true",
+                      help="choose the frame (default): of the first seconds with a face, the one with the "
+                           "mouth most closed and the head nearest to frontal")
+    p.add_argument("--seconds", type=float, default=2.0, metavar="S",
+                   help="how much of the clip --auto chooses from, counted from the first face (default 2)")
+    p.add_argument("--texture-size", type=int, default=TEXTURE_SIZE, metavar="PX",
+                   help=f"texture width and height in texels, 64-1024 (default {TEXTURE_SIZE})")
+    p.add_argument("-q", "--quiet", action="store_true", help="print only the id")
+    args = p.parse_args(argv)
+    if args.frame is not None and args.frame < 0:
+        p.error("--frame takes a frame index from 0")
+    if args.seconds <= 0:
+        p.error("--seconds must be positive")
+    if not 64 <= args.texture_size <= 1024:
+        p.error("--texture-size must be 64 to 1024")
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    return run_main("fd-enroll", lambda: _run(args))
+
+
+def _run(args) -> int:
+    from codec.face_file import personal_face, save_face_file
+    from codec.face_model import load_base_face
+    from codec.texture import texture_from_frame
+    from sender.sources import open_source
+
+    source = open_source(args.input)
+    base = load_base_face()
+    index, frame, landmarks, aligned, score = _neutral_frame(source, base, args.frame, args.seconds)
+    rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
+    texture = texture_from_frame(rgb, landmarks[:, :2], base.uv, base.faces, args.texture_size)
+    data = personal_face(aligned, texture, base)
+    ident = save_face_file(data, args.output)
+    print(ident)
+    if not args.quiet:
+        print(f"fd-enroll: face model {ident[:12]} from frame {index} (lip gap {score[0]:.3f}, head turned "
+              f"{score[1]:.1f} degrees), {len(data)} bytes in {args.output}", file=sys.stderr)
+    return 0
+
+
+def _neutral_frame(source, base, wanted: int | None, seconds: float):
+    """(index, BGR frame, (468, 3) landmarks in pixels, (468, 3) pose-free landmarks, (gap, degrees)).
+
+    With ``wanted`` that frame; otherwise the most neutral frame of the first
+    ``seconds`` after the face first appears.
+    """
+    from codec.errors import InputError, NoFaceError
+    from sender.calibrate import lip_gap
+    from sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
+    from sender.tracker import FaceTracker
+
+    tracker = FaceTracker()
+    stable = list(STABLE_LANDMARKS)
+    window = max(1, round(seconds * source.fps))
+    best, best_cost, seen, count = None, 0.0, 0, 0
+    for count, frame in enumerate(source.frames(), 1):
+        index = count - 1
+        if wanted is not None and index < wanted:
+            continue
+        landmarks = tracker.track(frame)
+        if landmarks is not None:
+            points = image_to_face_axes(landmarks)
+            pose = fit_pose(points[stable], base.vertices[stable])
+            score = (lip_gap(landmarks), float(np.linalg.norm(pose.head_rotation_vector())))
+            cost = score[0] / GAP_UNIT + score[1] / ANGLE_UNIT
+            if best is None or cost < best_cost:
+                best, best_cost = (index, frame, landmarks, pose.apply(points), score), cost
+            seen += 1
+        if wanted is not None:
+            if best is None:
+                raise NoFaceError(f"{_name(source)}: no face in frame {wanted}")
+            return best
+        if seen >= window:
+            break
+    if wanted is not None:
+        raise InputError(f"--frame {wanted}: the clip has only {count} frames")
+    if best is None:
+        raise NoFaceError(f"{_name(source)}: no face found in any frame")
+    return best
+
+
+def _name(source) -> str:
+    """The source's path for messages ('input' for a source without one)."""
+    return str(getattr(source, "path", "input"))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

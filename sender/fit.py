@@ -1,0 +1,114 @@
+"""Analysis by synthesis: the parameters whose deformed base mesh best matches the observed face.
+
+Every landmark is a vertex of the base face, so the receiver's own model can be
+fitted to all mouth and jaw landmarks at once instead of reading four feature
+points. The model is linear where it can be:
+
+- the jaw rotation R(theta) = I + sin(theta) K + (1 - cos(theta)) K^2 (Rodrigues),
+  so every lower-face vertex is c0 + sin(theta) c1 + (1 - cos(theta)) c2 + B v,
+  with v the 12 sent vector components and c1, c2, B fixed by the region map;
+- the upper face (brows, lids, cheeks) is a fixed linear basis.
+
+For a fixed theta the best v is a ridge least-squares solve; eliminating v
+leaves a quadratic form in (sin, 1 - cos), so theta is a 1-D minimisation of a
+trigonometric polynomial whose coefficients are two dot products per frame.
+"""
+
+import numpy as np
+
+from codec.deform import FREE, JAW_FOLLOWING, Deformer
+from codec.regions import FEATURE_NAMES
+from codec.upper_face import UPPER_PARAMS
+
+THETA_RANGE = (-15.0, 45.0)  # degrees: a little closing past rest, a wide yawn
+#: Ridge weight, relative to each unknown's own normal-equation diagonal: keeps poorly
+#: observed components near rest instead of chasing tracker noise.
+RIDGE = 1e-3
+_GRID = np.radians(np.linspace(*THETA_RANGE, 61))
+
+
+def _cross_matrix(axis: np.ndarray) -> np.ndarray:
+    x, y, z = axis
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def _ridge_solver(b: np.ndarray, ridge: float) -> np.ndarray:
+    """(p, m) matrix taking (m,) observations to the (p,) ridge least-squares solution of b (m, p)."""
+    gram = b.T @ b
+    return np.linalg.solve(gram + ridge * np.diag(np.diag(gram)), b.T)
+
+
+class ModelFit:
+    """Fits paper parameters (and, with ``upper``, the upper-face ones) to pose-free landmarks.
+
+    ``lower`` (k,) are the landmarks the paper's deformation moves (mouth, cheeks
+    below the eyes, chin and jaw line); ``upper_landmarks`` (u,) those the upper
+    face moves. Targets are (468, 3) in base-face units: the base face plus the
+    person's displacement from their rest face.
+    """
+
+    def __init__(self, deformer: Deformer, ridge: float = RIDGE) -> None:
+        regions = deformer.regions
+        col = {n: i for i, n in enumerate(FEATURE_NAMES)}
+        free = [col[n] for n in FREE]
+        follow = [col[n] for n in JAW_FOLLOWING]
+        w = regions.weights
+        self.lower = np.flatnonzero(regions.jaw | (np.abs(w[:, free + follow]).sum(axis=1) > 1e-9))
+        base = np.asarray(deformer.face.vertices, dtype=np.float64)
+        origin, axis = deformer.hinge_axis
+        k1 = _cross_matrix(axis)
+        k2 = k1 @ k1
+        fpos = base[[deformer.face.feature_points[n] for n in FEATURE_NAMES]]
+        rel = np.where(regions.jaw[self.lower, None], base[self.lower] - origin, 0.0)
+        wf = w[self.lower][:, follow]  # (k, 3) blend of the jaw-following points
+        frel = fpos[follow] - origin
+        self._c0 = base[self.lower].ravel()
+        self._c1 = (rel @ k1.T + wf @ (frel @ k1.T)).ravel()
+        self._c2 = (rel @ k2.T + wf @ (frel @ k2.T)).ravel()
+        b = np.kron(w[self.lower][:, free], np.eye(3))  # (3k, 12): vertex displacement per vector component
+        self._solve = _ridge_solver(b, ridge)  # (12, 3k)
+        # min_v |u - B v|^2 + ridge |v|^2 = u^T M u with M = I - B (B^T B + ridge I)^-1 B^T
+        mc1 = self._c1 - b @ (self._solve @ self._c1)
+        mc2 = self._c2 - b @ (self._solve @ self._c2)
+        self._mc = np.stack([mc1, mc2])  # (2, 3k)
+        self._k = np.array([[self._c1 @ mc1, self._c1 @ mc2], [self._c2 @ mc1, self._c2 @ mc2]])
+        self._b = b
+
+        up = deformer.upper
+        self.upper_landmarks = np.flatnonzero(np.abs(up.weights).sum(axis=1) > 1e-9)
+        bu = up.basis.reshape(len(base), 3, -1)[self.upper_landmarks].reshape(-1, len(UPPER_PARAMS))
+        self._upper_solve = _ridge_solver(bu, ridge)
+        self._upper_basis = bu
+        self._base = base
+
+    def paper(self, target: np.ndarray) -> np.ndarray:
+        """(468, 3) target -> (13,) parameters in PAPER_PARAMS order (theta in degrees)."""
+        d = np.asarray(target, dtype=np.float64)[self.lower].ravel() - self._c0
+        a = self._mc @ d  # (2,)
+        s, c = np.sin(_GRID), 1.0 - np.cos(_GRID)
+        k = self._k
+        cost = -2 * (s * a[0] + c * a[1]) + s * s * k[0, 0] + 2 * s * c * k[0, 1] + c * c * k[1, 1]
+        t = _GRID[np.argmin(cost)]
+        lo, hi = np.radians(THETA_RANGE)
+        for _ in range(3):  # Newton on the exact cost; the grid start is within half a step
+            s, c, ds, dc = np.sin(t), 1.0 - np.cos(t), np.cos(t), np.sin(t)
+            g = 2 * (-(ds * a[0] + dc * a[1]) + s * ds * k[0, 0] + (ds * c + s * dc) * k[0, 1] + c * dc * k[1, 1])
+            h = 2 * ((s * a[0] - ds * a[1]) + (ds * ds - s * s) * k[0, 0]
+                     + (2 * ds * dc + s * ds - c * s) * k[0, 1] + (dc * dc + c * ds) * k[1, 1])
+            if h <= 0:
+                break
+            t = float(np.clip(t - g / h, lo, hi))
+        v = self._solve @ (d - np.sin(t) * self._c1 - (1.0 - np.cos(t)) * self._c2)
+        return np.concatenate([[np.degrees(t)], v])
+
+    def upper(self, target: np.ndarray) -> np.ndarray:
+        """(468, 3) target -> (len(UPPER_PARAMS),) brow, lid and cheek parameters."""
+        d = np.asarray(target, dtype=np.float64)[self.upper_landmarks] - self._base[self.upper_landmarks]
+        return self._upper_solve @ d.ravel()
+
+    def lower_mesh(self, params: np.ndarray) -> np.ndarray:
+        """(k, 3) model positions of ``lower`` for (13,) paper parameters (for fidelity checks)."""
+        t = np.radians(params[0])
+        m = self._c0 + np.sin(t) * self._c1 + (1.0 - np.cos(t)) * self._c2 + self._b @ params[1:]
+        return m.reshape(-1, 3)
+

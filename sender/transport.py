@@ -1,0 +1,85 @@
+"""Where packets go: a file or stdout (byte stream), a TCP connection, or UDP datagrams.
+
+A sink takes the packets of one step of the encoder (``protocol.stream.PacketEncoder``
+returns lists of packets): byte-stream sinks write them with their sync bytes,
+the UDP sink sends one packet per datagram.
+"""
+
+import socket
+import sys
+from urllib.parse import urlsplit
+
+from codec.errors import InputError
+from protocol.stream import frame_bytes
+
+CONNECT_TIMEOUT = 5.0  # seconds
+
+
+class ByteSink:
+    """A binary file-like object (a file, stdout, a TCP socket's file)."""
+
+    def __init__(self, out, closes: bool = True) -> None:
+        self._out, self._closes = out, closes
+
+    def write(self, packets: list[bytes]) -> None:
+        if packets:
+            self._out.write(frame_bytes(packets))
+            self._out.flush()
+
+    def close(self) -> None:
+        if self._closes:
+            self._out.close()
+
+
+class DatagramSink:
+    """One UDP datagram per packet to ``address`` (host, port)."""
+
+    def __init__(self, address: tuple[str, int]) -> None:
+        self._sock = socket.socket(_family(address), socket.SOCK_DGRAM)
+        self._address = address
+
+    def write(self, packets: list[bytes]) -> None:
+        for packet in packets:
+            self._sock.sendto(packet, self._address)
+
+    def close(self) -> None:
+        self._sock.close()
+
+
+def _family(address: tuple[str, int]) -> int:
+    return socket.AF_INET6 if ":" in address[0] else socket.AF_INET
+
+
+def _address(url: str) -> tuple[str, int]:
+    parts = urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if not parts.hostname or port is None:
+        raise InputError(f"{url}: expected {parts.scheme}://HOST:PORT")
+    return parts.hostname, port
+
+
+def open_sink(output: str):
+    """``-`` (stdout), ``udp://HOST:PORT``, ``tcp://HOST:PORT`` or a file path."""
+    if output == "-":
+        if sys.stdout.isatty():
+            raise InputError("refusing to write a binary stream to a terminal: pipe it (| fd-recv) or use -o FILE")
+        return ByteSink(sys.stdout.buffer, closes=False)
+    if output.startswith("udp://"):
+        return DatagramSink(_address(output))
+    if output.startswith("tcp://"):
+        address = _address(output)
+        try:
+            sock = socket.create_connection(address, timeout=CONNECT_TIMEOUT)
+        except OSError as exc:
+            raise InputError(f"{output}: cannot connect ({exc.strerror or exc})") from None
+        sock.settimeout(None)
+        out = sock.makefile("wb")
+        sock.close()  # the connection lives on in ``out`` until it is closed
+        return ByteSink(out)
+    try:
+        return ByteSink(open(output, "wb"))
+    except OSError as exc:
+        raise InputError(f"{output}: cannot write ({exc.strerror})") from None

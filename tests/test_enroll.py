@@ -1,0 +1,79 @@
+"""fd-enroll on the bundled clip: a personal model that differs from the generic face, and one-line errors."""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from codec.face_file import face_id, load_face_file
+from codec.face_model import load_base_face
+from sender.enroll import main
+
+ROOT = Path(__file__).resolve().parents[1]
+CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
+
+
+def one_line_error(capsys, code):
+    err = capsys.readouterr().err
+    assert code != 0 and err.startswith("fd-enroll: ") and err.count("\n") == 1, err
+    return err
+
+
+@pytest.mark.parametrize("choice", [[], ["--frame", "3"]])
+def test_enrolment_writes_a_personal_textured_model(tmp_path, capsys, choice):
+    out = tmp_path / "me.fdface"
+    assert main([str(CLIP), "-o", str(out), *choice]) == 0
+    printed = capsys.readouterr().out.strip()
+    face = load_face_file(out)
+    assert printed == face.content_id == face_id(out.read_bytes())
+    generic = load_base_face()
+    assert np.abs(face.vertices - generic.vertices).max() > 0.01
+    np.testing.assert_allclose(face.vertices[10, 1] - face.vertices[152, 1], 1.0, atol=1e-5)
+    texture = face.texture
+    assert texture.shape == (256, 256, 3)
+    centre = texture[64:192, 64:192].reshape(-1, 3).astype(float)
+    assert centre.std(axis=0).min() > 10  # a face, not a flat fill
+    assert 50 < centre.mean() < 230
+    assert out.stat().st_size < 60_000
+
+
+def test_auto_choice_is_a_closed_mouth_frame(tmp_path, capsys):
+    assert main([str(CLIP), "-o", str(tmp_path / "a.fdface")]) == 0
+    err = capsys.readouterr().err
+    gap = float(err.split("lip gap ")[1].split(",")[0])
+    assert gap < 0.05, err
+
+
+def test_missing_file(tmp_path, capsys):
+    code = main([str(tmp_path / "none.mp4"), "-o", str(tmp_path / "x.fdface")])
+    assert "no such file" in one_line_error(capsys, code)
+
+
+def test_not_a_video(tmp_path, capsys):
+    bogus = tmp_path / "notes.mp4"
+    bogus.write_text("not a video at all\n" * 50)
+    code = main([str(bogus), "-o", str(tmp_path / "x.fdface")])
+    assert "not a video" in one_line_error(capsys, code)
+
+
+def test_no_face(tmp_path, capsys):
+    blank = tmp_path / "blank.avi"
+    writer = cv2.VideoWriter(str(blank), cv2.VideoWriter_fourcc(*"MJPG"), 25, (128, 96))
+    for _ in range(10):
+        writer.write(np.full((96, 128, 3), 90, np.uint8))
+    writer.release()
+    code = main([str(blank), "-o", str(tmp_path / "x.fdface")])
+    assert "no face" in one_line_error(capsys, code)
+    assert not (tmp_path / "x.fdface").exists()
+
+
+def test_frame_beyond_the_clip(tmp_path, capsys):
+    code = main([str(CLIP), "--frame", "100000", "-o", str(tmp_path / "x.fdface")])
+    assert "--frame 100000" in one_line_error(capsys, code)
+
+
+def test_unknown_option(capsys):
+    with pytest.raises(SystemExit) as info:
+        main([str(CLIP), "-o", "x.fdface", "--bogus"])
+    one_line_error(capsys, info.value.code)

@@ -1,0 +1,221 @@
+"""fd-recv as people use it: UDP with loss, TCP, face models, and every mistake as one line.
+
+Sockets are on loopback only; every wait has a deadline.
+"""
+
+import json
+import selectors
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from codec.deform import PAPER_PARAMS
+from codec.face_file import decode_face, personal_face, save_face_file
+from codec.face_model import load_base_face
+from protocol.stream import Header, PacketEncoder, StreamEncoder, frame_bytes, steps_for
+from receiver.cli import main
+from tests.test_output import parse_y4m
+
+ROOT = Path(__file__).resolve().parents[1]
+RECV = [sys.executable, "-m", "receiver.cli"]
+NAMES = PAPER_PARAMS + ("rx", "ry", "rz")
+N, FPS, KEY = 150, 25.0, 25
+DEADLINE = 120  # seconds: generous for a loaded machine, never reached when things work
+GENERIC = load_base_face()
+
+
+def smooth_tracks(n=N) -> np.ndarray:
+    """(n, 16) parameters that move like speech: jaw in degrees, mouth points in face units, head in degrees."""
+    t = np.arange(n)[:, None] / FPS
+    phase = np.arange(len(NAMES))[None, :]
+    scale = np.array([8.0] + [0.02] * 12 + [4.0] * 3)
+    return scale * (0.5 + 0.5 * np.sin(2 * np.pi * (1.5 + 0.1 * phase) * t + phase))
+
+
+def header(face_id=GENERIC.content_id, model_size=0) -> Header:
+    return Header(FPS, NAMES, steps_for(NAMES), face_id, key_interval=KEY, model_size=model_size)
+
+
+def stream_packets(params, fpp=2):
+    """The stream as datagrams: [(packet, (first, last) frame it carries, or None)], header to end mark."""
+    enc = PacketEncoder(header(), fpp)
+    out = [(p, None) for p in enc.header()]
+    first = 0
+    for i, p in enumerate(params):
+        for packet in enc.frame(p, True):
+            out.append((packet, (first, i)))
+            first = i + 1
+    *last, end = enc.end()
+    out += [(p, (first, len(params) - 1)) for p in last] + [(end, None)]
+    return out
+
+
+def start_listener(url, tmp_path, *extra):
+    proc = subprocess.Popen(RECV + ["--listen", url, "-o", str(tmp_path / "out.y4m"), "--size", "64",
+                                    "--dump", str(tmp_path / "recv.npz"), "--json", *extra],
+                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=ROOT, bufsize=0)
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stderr, selectors.EVENT_READ)
+        if not sel.select(timeout=DEADLINE):
+            proc.kill()
+            pytest.fail("fd-recv did not start listening")
+    line = proc.stderr.readline().decode()
+    assert line.startswith("fd-recv: listening on "), line
+    return proc, int(line.rsplit(":", 1)[1])
+
+
+def finish(proc):
+    _, err = proc.communicate(timeout=DEADLINE)
+    lines = err.decode().strip().splitlines()
+    assert proc.returncode == 0, err.decode()
+    return json.loads(lines[-1]), lines[:-1]
+
+
+def test_udp_with_five_percent_loss_gives_every_frame_and_resyncs(tmp_path):
+    params = smooth_tracks()
+    stream = stream_packets(params)
+    frame_packets = [i for i, (_, frames) in enumerate(stream) if frames is not None]
+    dropped = set(frame_packets[7::20])  # a deterministic 5 % of the frame packets
+    concealed = set()
+    for i in dropped:
+        first, last = stream[i][1]
+        concealed.update(range(first, -(-(last + 1) // KEY) * KEY))  # until the next keyframe
+    proc, port = start_listener("udp://127.0.0.1:0", tmp_path)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        for i, (packet, _) in enumerate(stream):
+            if i not in dropped:
+                sock.sendto(packet, ("127.0.0.1", port))
+    stats, _ = finish(proc)
+    dump = np.load(tmp_path / "recv.npz")
+    assert len(dropped) >= 3
+    assert parse_y4m((tmp_path / "out.y4m").read_bytes())[1] == N
+    np.testing.assert_array_equal(dump["seq"], np.arange(N))
+    assert set(np.flatnonzero(dump["concealed"])) == concealed
+    steps = steps_for(NAMES)
+    good = ~dump["concealed"]
+    np.testing.assert_allclose(dump["params"][good], (np.round(params / steps) * steps)[good], atol=1e-9)
+    assert stats["frames"] == stats["written"] == N and stats["concealed"] == len(concealed)
+    assert stats["ended"] and stats["damage_reports"] == len(dropped)
+    assert 0 <= stats["latency_ms"]["median"] <= stats["latency_ms"]["max"]
+
+
+def test_udp_without_an_end_mark_ends_after_the_idle_timeout(tmp_path):
+    stream = stream_packets(smooth_tracks(50))[:-1]
+    proc, port = start_listener("udp://127.0.0.1:0", tmp_path, "--timeout", "0.5")
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        for packet, _ in stream:
+            sock.sendto(packet, ("127.0.0.1", port))
+    stats, lines = finish(proc)
+    assert stats["frames"] == 50 and not stats["ended"]
+    assert any("without the stream's end mark" in line for line in lines)
+
+
+def test_tcp_delivers_every_frame(tmp_path):
+    stream = stream_packets(smooth_tracks())
+    proc, port = start_listener("tcp://127.0.0.1:0", tmp_path)
+    with socket.create_connection(("127.0.0.1", port), timeout=DEADLINE) as sock:
+        sock.sendall(frame_bytes([p for p, _ in stream]))
+    stats, _ = finish(proc)
+    assert parse_y4m((tmp_path / "out.y4m").read_bytes())[1] == N
+    assert stats["frames"] == N and stats["concealed"] == 0 and stats["ended"] and stats["face"] == "generic"
+
+
+def a_face(tmp_path) -> tuple[Path, bytes]:
+    bent = GENERIC.vertices * [1.1, 1.0, 1.0]
+    texture = np.full((64, 64, 3), (180, 140, 120), np.uint8)
+    data = personal_face(bent, texture)
+    path = tmp_path / "p.fdface"
+    save_face_file(data, path)
+    return path, data
+
+
+def write_stream(path, face_id=GENERIC.content_id, model=b"", n=30) -> Path:
+    enc = StreamEncoder(header(face_id, len(model)), 2, model)
+    path.write_bytes(enc.header() + b"".join(enc.frame(p, True) for p in smooth_tracks(n)) + enc.end())
+    return path
+
+
+def run_main(capsys, args):
+    try:
+        code = main(args)
+    except SystemExit as exc:  # argparse
+        code = exc.code
+    return code, capsys.readouterr().err
+
+
+def assert_one_line(code, err, *words):
+    assert code != 0 and err.startswith("fd-recv: ") and err.count("\n") == 1, err
+    for w in words:
+        assert w in err, err
+
+
+def test_face_file_for_another_stream_is_refused_naming_both_ids(tmp_path, capsys):
+    face, data = a_face(tmp_path)
+    stream = write_stream(tmp_path / "s.fd")
+    code, err = run_main(capsys, [str(stream), "--face", str(face), "-o", str(tmp_path / "o.y4m")])
+    assert_one_line(code, err, decode_face(data).content_id[:12], GENERIC.content_id[:12])
+
+
+@pytest.mark.parametrize("in_band", [False, True])
+def test_personal_face_from_file_or_in_band_is_drawn_textured(tmp_path, capsys, in_band):
+    face, data = a_face(tmp_path)
+    ident = decode_face(data).content_id
+    stream = write_stream(tmp_path / "s.fd", ident, data if in_band else b"")
+    args = [str(stream), "-o", str(tmp_path / "o.y4m"), "--size", "64", "--json", "--fps", "50"]
+    code, err = run_main(capsys, args + ([] if in_band else ["--face", str(face)]))
+    stats = json.loads(err.strip().splitlines()[-1])
+    assert code == 0 and stats["face"] == ("stream" if in_band else "file") and stats["face_id"] == ident
+    assert stats["written"] == 60 == parse_y4m((tmp_path / "o.y4m").read_bytes())[1]
+
+
+def test_stream_for_an_unknown_face_asks_for_it(tmp_path, capsys):
+    stream = write_stream(tmp_path / "s.fd", "ab" * 32)
+    code, err = run_main(capsys, [str(stream), "-o", str(tmp_path / "o.y4m")])
+    assert_one_line(code, err, "--face FILE")
+
+
+@pytest.mark.parametrize("kind", [socket.SOCK_DGRAM, socket.SOCK_STREAM])
+def test_port_in_use(capsys, kind):
+    with socket.socket(socket.AF_INET, kind) as taken:
+        taken.bind(("127.0.0.1", 0))
+        if kind == socket.SOCK_STREAM:
+            taken.listen(1)
+        scheme = "udp" if kind == socket.SOCK_DGRAM else "tcp"
+        url = f"{scheme}://127.0.0.1:{taken.getsockname()[1]}"
+        code, err = run_main(capsys, ["--listen", url, "-o", "unused.y4m", "-q"])
+    assert_one_line(code, err, "cannot listen", url)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="elsewhere a GUI build may open a window")
+def test_show_without_a_gui_or_display_fails_in_one_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    code, err = run_main(capsys, [str(write_stream(tmp_path / "s.fd")), "--show"])
+    assert_one_line(code, err, "--show")
+
+
+@pytest.mark.parametrize("args, words", [
+    (["missing.fd"], ["missing.fd", "cannot read"]),
+    (["--face", "missing.fdface"], ["missing.fdface"]),
+    (["--listen", "http://x:1"], ["udp://HOST:PORT"]),
+    (["--bogus"], ["--bogus"]),
+    (["--fps", "0"], ["--fps"]),
+])
+def test_user_mistakes_are_one_line(tmp_path, capsys, args, words):
+    code, err = run_main(capsys, args + ["-o", str(tmp_path / "o.y4m")])
+    assert_one_line(code, err, *words)
+
+
+def test_corrupted_and_foreign_input_are_one_line(tmp_path, capsys):
+    junk = tmp_path / "junk.fd"
+    junk.write_bytes(bytes(range(256)) * 300)
+    code, err = run_main(capsys, [str(junk), "-o", str(tmp_path / "o.y4m")])
+    assert_one_line(code, err, "not an fd stream")
+    cut = write_stream(tmp_path / "s.fd")
+    cut.write_bytes(cut.read_bytes()[:-20])
+    code, err = run_main(capsys, [str(cut), "-o", str(tmp_path / "o.y4m"), "-q"])
+    assert_one_line(code, err, "truncated")

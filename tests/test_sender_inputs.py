@@ -1,0 +1,108 @@
+"""fd-send's inputs and outputs: image sequences, cameras, --neutral, --json, TCP and UDP on loopback."""
+
+import json
+import socket
+import threading
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from codec.face_model import load_base_face
+from protocol.stream import DatagramDecoder, Frame, StreamDecoder
+from tests.test_cli import CLIP, SEND, assert_one_line_error, run
+
+FRAMES = 30
+
+
+@pytest.fixture(scope="module")
+def image_dir(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("frames")
+    cap = cv2.VideoCapture(str(CLIP))
+    for i in range(FRAMES):
+        ok, frame = cap.read()
+        assert ok
+        cv2.imwrite(str(folder / f"{i + 1:04d}.png"), frame)
+    return folder
+
+
+def frames_in(stream: bytes) -> int:
+    decoder = StreamDecoder()
+    events = decoder.feed(stream) + decoder.close()
+    return sum(isinstance(e, Frame) for e in events)
+
+
+@pytest.mark.parametrize("form", ["directory", "pattern"])
+def test_image_sequence(image_dir, form, tmp_path):
+    spec = str(image_dir) if form == "directory" else str(image_dir / "%04d.png")
+    result = run(SEND + [spec, "--fps", "30", "--json"])
+    assert result.returncode == 0, result.stderr.decode()
+    stats = json.loads(result.stderr)
+    assert stats["frames"] == FRAMES and stats["fps"] == 30.0
+    assert frames_in(result.stdout) == FRAMES
+
+
+def test_neutral_picks_that_frame(tmp_path):
+    dump = tmp_path / "d.npz"
+    result = run(SEND + [str(CLIP), "--neutral", "40", "--json", "--dump", str(dump), "-o", str(tmp_path / "s.fd")])
+    assert result.returncode == 0, result.stderr.decode()
+    assert json.loads(result.stderr)["rest_frame"] == 40
+    data = np.load(dump)
+    assert int(data["rest_frame"]) == 40
+    # the rest frame's face is the rest face: its pose-free target is the base face itself
+    np.testing.assert_allclose(data["targets"][40], load_base_face().vertices, atol=1e-5)
+
+
+def test_default_rest_face_is_in_the_first_second():
+    result = run(SEND + [str(CLIP), "--json", "-o", "/dev/null"])
+    assert result.returncode == 0
+    assert 0 <= json.loads(result.stderr)["rest_frame"] < 25
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--camera", "99"], "camera 99 not available"),
+    ([str(CLIP), "-o", "tcp://127.0.0.1:1"], "cannot connect"),
+    ([str(CLIP), "--neutral", "500"], "no face tracked in that frame"),
+    (["/nonexistent/%04d.png"], "no images found"),
+])
+def test_input_errors_are_one_line(args, message):
+    result = run(SEND + args)
+    assert_one_line_error(result, "fd-send")
+    assert message in result.stderr.decode()
+
+
+def test_tcp_loopback():
+    server = socket.create_server(("127.0.0.1", 0))
+    received = bytearray()
+
+    def accept():
+        conn, _ = server.accept()
+        with conn:
+            while chunk := conn.recv(65536):
+                received.extend(chunk)
+
+    thread = threading.Thread(target=accept)
+    thread.start()
+    result = run(SEND + [str(CLIP), "-q", "-o", f"tcp://127.0.0.1:{server.getsockname()[1]}"])
+    thread.join(timeout=60)
+    server.close()
+    assert result.returncode == 0, result.stderr.decode()
+    assert frames_in(bytes(received)) == 75
+
+
+def test_udp_loopback():
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+    sock.settimeout(1.0)  # everything is queued by the time fd-send exits
+    result = run(SEND + [str(CLIP), "-q", "-o", f"udp://127.0.0.1:{sock.getsockname()[1]}"])
+    assert result.returncode == 0, result.stderr.decode()
+    decoder, frames = DatagramDecoder(), 0
+    try:
+        while True:
+            frames += sum(isinstance(e, Frame) for e in decoder.receive(sock.recv(65536)))
+    except socket.timeout:
+        pass
+    sock.close()
+    assert frames == 75
