@@ -93,7 +93,8 @@ def main() -> None:
     frames = talking_frames(face)
     parts = dict(mouth_faces=face.mouth_faces, eye_faces=face.eye_faces)
     print(f"Renderer.render, base face, one thread, median of {FRAMES} frames, "
-          f"{datetime.date.today().isoformat()}, {numba.config.NUMBA_DEFAULT_NUM_THREADS} cpus\n")
+          f"{datetime.date.today().isoformat()}, {numba.config.NUMBA_DEFAULT_NUM_THREADS} cpus, "
+          f"load average {os.getloadavg()[0]:.2f} (other processes slow it down)\n")
     print("| size | supersample | shaded ms | textured ms |")
     print("|---|---|---|---|")
     for size in (256, 512):

@@ -38,6 +38,10 @@ class Camera:
     near: float
     far: float
 
+    def __post_init__(self) -> None:
+        # the axes, validated once: project() runs every frame
+        object.__setattr__(self, "_axes", self._axes_of())
+
     @classmethod
     def perspective(cls, fov_y_deg: float, eye, target, up=(0, 1, 0),
                     near: float = 0.01, far: float = 100.0) -> "Camera":
@@ -58,7 +62,6 @@ class Camera:
                   fov, height, float(near), float(far))
         if not 0.0 < cam.near < cam.far < math.inf:
             raise ValueError(f"need 0 < near < far < inf, got near={near} far={far}")
-        cam.basis()  # validates eye/target/up
         return cam
 
     @property
@@ -67,6 +70,9 @@ class Camera:
 
     def basis(self) -> np.ndarray:
         """(3, 3) float64 rows: camera right, up and backward (toward the viewer) axes."""
+        return self._axes.copy()
+
+    def _axes_of(self) -> np.ndarray:
         back = np.subtract(self.eye, self.target)
         norm = np.linalg.norm(back)
         if norm == 0.0:
@@ -93,7 +99,7 @@ class Camera:
         """
         width, height = size
         rel = np.asarray(points, dtype=np.float64) - np.asarray(self.eye)
-        view = rel @ self.basis().T
+        view = rel @ self._axes.T
         depth = -view[:, 2]
         out = np.empty((view.shape[0], 4), dtype=np.float64)
         if self.is_perspective:

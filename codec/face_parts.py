@@ -8,7 +8,10 @@ they follow the lips and lids without extra geometry.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 TEETH_BAND = 0.09  # height of the visible upper teeth over the mouth's width
 TEETH_SHARE = 0.4  # at most this share of the local opening (beyond LIPS_GAP) shows teeth
@@ -70,26 +73,62 @@ def eye_components(faces: np.ndarray, eye_mask: np.ndarray) -> list[np.ndarray]:
     return [tris[labels == label] for label in dict.fromkeys(labels.tolist())]
 
 
-def eye_discs(vertices: np.ndarray, faces: np.ndarray, eyes: list[np.ndarray],
-              irises: np.ndarray | None = None) -> np.ndarray:
-    """(e, 7) float64 per eye: iris centre (3), unit eye axis (3), iris radius.
+def eye_pieces(faces: np.ndarray, eyes: list[np.ndarray]) -> tuple[np.ndarray, ...]:
+    """Flatten eye_components' list for eye_discs: (tri_start, tris, vertex_start, vertices).
 
-    The centre is the midpoint of the eye's two farthest vertices (its
-    corners), which barely move when the lids do, or the nearest of the given
-    (k, 3) ``irises`` (a gaze model's); the axis is the fill's area-weighted
-    normal, along which the iris disc is projected.
+    Eye e owns triangles tris[tri_start[e]:tri_start[e + 1]] and vertices
+    vertices[vertex_start[e]:vertex_start[e + 1]]; all int64.
     """
-    out = np.zeros((max(len(eyes), 1), 7))
-    for e, tris in enumerate(eyes):
-        pts = vertices[np.unique(faces[tris])]
-        dist2 = ((pts[:, None] - pts[None]) ** 2).sum(-1)
-        i, j = np.unravel_index(np.argmax(dist2), dist2.shape)
-        tri = vertices[faces[tris]]
-        axis = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).sum(0)
-        norm = np.linalg.norm(axis)
-        out[e, :3] = (pts[i] + pts[j]) / 2
-        if irises is not None and len(irises):
-            out[e, :3] = irises[np.argmin(((np.asarray(irises) - out[e, :3]) ** 2).sum(1))]
-        out[e, 3:6] = axis / norm if norm > 0.0 else 0.0
-        out[e, 6] = IRIS_SCALE * np.sqrt(dist2[i, j])
+    verts = [np.unique(faces[tris]) for tris in eyes]
+    starts = [np.cumsum([0] + [len(p) for p in parts]) for parts in (eyes, verts)]
+    flat = [np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)
+            for parts in (eyes, verts)]
+    return starts[0], flat[0], starts[1], flat[1]
+
+
+@njit(cache=True)
+def eye_discs(vertices, faces, tri_start, tris, vertex_start, eye_vertices, irises):
+    """(max(e, 1), 7) float64 per eye: iris centre (3), unit eye axis (3), iris radius.
+
+    vertices: (n, 3) float64; faces: (m, 3) int32; the eyes as eye_pieces
+    lays them out. The centre is the midpoint of the eye's two farthest
+    vertices (its corners), which barely move when the lids do, or the
+    nearest of the (k, 3) float64 irises (a gaze model's; k may be 0); the
+    axis is the fill's area-weighted normal, along which the iris disc is
+    projected.
+    """
+    out = np.zeros((max(len(tri_start) - 1, 1), 7))
+    for e in range(len(tri_start) - 1):
+        best, bi, bj = -1.0, 0, 0
+        for i in range(vertex_start[e], vertex_start[e + 1]):
+            for j in range(vertex_start[e], vertex_start[e + 1]):
+                a, b = eye_vertices[i], eye_vertices[j]
+                d2 = ((vertices[a, 0] - vertices[b, 0]) ** 2 + (vertices[a, 1] - vertices[b, 1]) ** 2
+                      + (vertices[a, 2] - vertices[b, 2]) ** 2)
+                if d2 > best:
+                    best, bi, bj = d2, a, b
+        ax, ay, az = 0.0, 0.0, 0.0
+        for k in range(tri_start[e], tri_start[e + 1]):
+            p, q, r = faces[tris[k], 0], faces[tris[k], 1], faces[tris[k], 2]
+            ux, uy, uz = vertices[q, 0] - vertices[p, 0], vertices[q, 1] - vertices[p, 1], \
+                vertices[q, 2] - vertices[p, 2]
+            vx, vy, vz = vertices[r, 0] - vertices[p, 0], vertices[r, 1] - vertices[p, 1], \
+                vertices[r, 2] - vertices[p, 2]
+            ax += uy * vz - uz * vy
+            ay += uz * vx - ux * vz
+            az += ux * vy - uy * vx
+        for c in range(3):
+            out[e, c] = (vertices[bi, c] + vertices[bj, c]) / 2
+        if irises.shape[0] > 0:
+            nearest, pick = np.inf, 0
+            for k in range(irises.shape[0]):
+                d2 = ((irises[k, 0] - out[e, 0]) ** 2 + (irises[k, 1] - out[e, 1]) ** 2
+                      + (irises[k, 2] - out[e, 2]) ** 2)
+                if d2 < nearest:
+                    nearest, pick = d2, k
+            out[e, :3] = irises[pick]
+        norm = math.sqrt(ax * ax + ay * ay + az * az)
+        if norm > 0.0:
+            out[e, 3], out[e, 4], out[e, 5] = ax / norm, ay / norm, az / norm
+        out[e, 6] = IRIS_SCALE * math.sqrt(best)
     return out

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import Camera
-from .face_parts import eye_components, eye_discs, teeth_columns
-from .raster import rasterize, vertex_normals
-from .shade import EYE, MOUTH, SPEC_STEPS, shade
+from .face_parts import eye_components, eye_discs, eye_pieces, teeth_columns
+from .raster import draw, vertex_normals
+from .shade import EYE, MOUTH, SPEC_STEPS, resolve
 
 
 def srgb_to_linear(values) -> np.ndarray:
@@ -35,6 +35,7 @@ def linear_to_srgb(values) -> np.ndarray:
 
 
 _DECODE = srgb_to_linear(np.arange(256) / 255.0)
+_NO_IRISES = np.zeros((0, 3))
 _ENCODE = np.round(linear_to_srgb(np.arange(65536) / 65535.0) * 255.0).astype(np.uint8)
 
 
@@ -133,14 +134,15 @@ class Renderer:
         self._eyes = eye_components(self.faces, eyes)
         if len(self._eyes) > 127 - EYE:
             raise ValueError(f"eye_faces has {len(self._eyes)} separate pieces, at most {127 - EYE}")
+        self._eye_pieces = eye_pieces(self.faces, self._eyes)
         self._kind = np.zeros(len(self.faces), np.int8)
         self._kind[mouth] = MOUTH
         for e, tris in enumerate(self._eyes):
             self._kind[tris] = EYE + e
         shape = (height * supersample, width * supersample)
         self._nearness = np.full(shape, -np.inf, np.float32)
-        self._tri_id = np.zeros(shape, np.int32)
-        self._plane = np.zeros((len(self.faces), 6))
+        # 2x2 samples are shaded into linear RGB and resolved; one sample per pixel goes straight out
+        self._linear = np.zeros((*shape, 3) if supersample > 1 else (0, 0, 3), np.float32)
         self._drawn = (0, 0, -1, -1)  # the last frame's drawn box, to clear
         self._no_count = np.zeros((0, 0), np.int32)
 
@@ -191,6 +193,10 @@ class Renderer:
         along the camera's viewing axis of the nearest surface (the nearest of
         the 2x2 samples when supersampling), +inf where nothing is drawn.
         """
+        return self._render(vertices, camera, irises, self._no_count)
+
+    def _render(self, vertices, camera: Camera, irises, count) -> tuple[np.ndarray, np.ndarray]:
+        """render(), also counting every fragment into count (sH, sW) int32 unless it is (0, 0)."""
         v = np.asarray(vertices)
         if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] < self._min_vertices:
             raise ValueError(f"vertices must be (n, 3) with n >= {self._min_vertices}, got {v.shape}")
@@ -201,32 +207,33 @@ class Renderer:
             raise ValueError(f"vertices must match uv: {len(self._uv)} rows, got {len(v)}")
         if not isinstance(camera, Camera):
             raise ValueError(f"camera must be a Camera, got {type(camera).__name__}")
+        irises = _NO_IRISES if irises is None else _finite(irises, np.shape(irises), "irises")
+        if irises.ndim != 2 or irises.shape[1] != 3:
+            raise ValueError(f"irises must be (k, 3), got {irises.shape}")
         ss = self.supersample
         width, height = self.size
         sw, sh = width * ss, height * ss
         screen = camera.project(v, (sw, sh))
         persp = camera.is_perspective
-        inv_w = screen[:, 3] if persp else np.ones(len(v))
-        box = rasterize(screen, inv_w if persp else -screen[:, 2], self.faces, camera.near,
-                        camera.far, self._drawn, self._nearness, self._tri_id, self._plane,
-                        self._no_count)
-        self._drawn = box
         image = self._background.copy()
         depth = np.full((height, width), np.inf, np.float32)
-        if box[0] > box[2]:
-            return image, depth
-        basis = camera.basis()
-        view = np.empty((4, 3))
-        view[:3] = basis[[2, 0, 1]]
-        view[3] = (0.5 * sw, 0.5 * sh, 1.0 / camera.focal(sh) if persp else 0.0)
-        toward = np.subtract(camera.eye, v.mean(axis=0)) if persp else basis[2]
+        right, up, back = camera.basis()
+        inv_f = 1.0 / camera.focal(sh) if persp else 0.0
+        ray = np.stack([-inv_f * right, inv_f * up,
+                        back + inv_f * ((0.5 * sw - 0.5) * right - (0.5 * sh - 0.5) * up)])
+        toward = np.subtract(camera.eye, v.mean(axis=0)) if persp else back
         half = self._light_dir + toward / max(np.linalg.norm(toward), 1e-300)
         half /= np.maximum(np.linalg.norm(half, axis=1, keepdims=True), 1e-300)
-        shade(self._nearness, self._tri_id, self._plane, box, self.faces, inv_w,
-              vertex_normals(v, self.faces), v, self._uv, self._texture, self._kind,
-              self._albedo, self._ambient, self._light_dir, self._light_rgb, half,
-              self._spec_lut, self._spec_cut, view,
-              teeth_columns(screen, self._mouth_vertices, sw),
-              eye_discs(v, self.faces, self._eyes, irises), persp, self._background, _DECODE,
-              _ENCODE, ss, image, depth)
+        shading = (self._ambient, self._albedo, self._light_dir, self._light_rgb, half,
+                   self._spec_lut, self._spec_cut, ray)
+        box = draw(screen, screen[:, 3] if persp else -screen[:, 2], persp,
+                   vertex_normals(v, self.faces), v, self._uv, self.faces, self._kind, camera.near,
+                   camera.far, self._drawn, self._nearness, count, shading, self._texture,
+                   teeth_columns(screen, self._mouth_vertices, sw),
+                   eye_discs(v, self.faces, *self._eye_pieces, irises), _ENCODE, image, depth,
+                   self._linear)
+        self._drawn = box
+        if ss > 1 and box[0] <= box[2]:
+            resolve(self._nearness, self._linear, box, persp, self._background, _DECODE, _ENCODE,
+                    image, depth)
         return image, depth

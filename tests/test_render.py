@@ -4,21 +4,18 @@ import numpy as np
 import pytest
 
 from codec.camera import Camera
-from codec.raster import rasterize
+from codec.face_parts import IRIS_SCALE, eye_components, eye_discs, eye_pieces
 from codec.render import DirectionalLight, Material, Renderer, linear_to_srgb, srgb_to_linear
 from codec.shade import MOUTH_DARK, PUPIL, SCLERA
 
 FLAT = Material(albedo=(1.0, 1.0, 1.0), ambient=1.0, specular=0.0)  # output = albedo/texture
-NO_COUNT = np.zeros((0, 0), np.int32)
 
 
-def raster(verts, faces, w, h, count=NO_COUNT):
-    """Rasterise with pixel_camera: (nearness (h, w) float32, tri_id (h, w) int32)."""
-    screen = pixel_camera(w, h).project(verts, (w, h))
-    nearness, ids = np.full((h, w), -np.inf, np.float32), np.full((h, w), -1, np.int32)
-    rasterize(screen, -screen[:, 2], faces, 0.01, 100.0, (0, 0, -1, -1), nearness, ids,
-              np.zeros((len(faces), 6)), count)
-    return nearness, ids
+def fragments(verts, faces, w, h):
+    """(h, w) int32 count of the fragments each pixel receives under pixel_camera."""
+    count = np.zeros((h, w), np.int32)
+    Renderer(faces, size=(w, h))._render(verts, pixel_camera(w, h), None, count)
+    return count
 
 
 def pixel_camera(w, h):
@@ -64,8 +61,7 @@ def grid_mesh(x0, x1, cells, jitter, rng):
 def test_tiling_covers_every_pixel_exactly_once(jitter):
     w = h = 64
     verts, faces = grid_mesh(8.5, 56.5, 8, jitter, np.random.default_rng(1))
-    count = np.zeros((h, w), np.int32)
-    raster(verts, faces, w, h, count)
+    count = fragments(verts, faces, w, h)
     # corners sit on pixel centres 8..56 (x) and 7..55 (y, flipped): the top-left
     # rule keeps the left and top edges and drops the right and bottom ones
     expected = np.zeros((h, w), np.int32)
@@ -88,12 +84,17 @@ def test_nearer_triangle_wins_in_either_order(order):
     verts = np.concatenate([tris[k] for k in order])
     faces = np.array([[0, 1, 2], [3, 4, 5]], np.int32)
     near = order.index(0)
-    nearness, ids = raster(verts, faces, 64, 64)
-    solo, _ = raster(verts, faces[near:near + 1], 64, 64)
+    # a two-texel texture paints the nearer triangle red and the farther blue
+    texture = np.uint8([[[255, 0, 0], [0, 0, 255]]])
+    uv = np.where(np.arange(6)[:, None] // 3 == near, [0.25, 0.5], [0.75, 0.5])
+    camera = pixel_camera(64, 64)
+    image, depth = Renderer(faces, size=(64, 64), material=FLAT, lights=(), uv=uv,
+                            texture=texture).render(verts, camera)
+    _, solo = Renderer(faces[near:near + 1], size=(64, 64)).render(verts, camera)
     covered = np.isfinite(solo)
-    assert (ids == 1 - near).any()
-    np.testing.assert_array_equal(ids[covered], near)
-    np.testing.assert_allclose(nearness[covered], -9.0)  # orthographic nearness = -depth
+    assert (image == (0, 0, 255)).all(-1).any()
+    np.testing.assert_array_equal(image[covered], np.broadcast_to([255, 0, 0], (covered.sum(), 3)))
+    np.testing.assert_allclose(depth[covered], 9.0)
 
 
 def test_flat_triangle_matches_lambert():
@@ -276,3 +277,41 @@ def test_bad_input_raises_value_error():
                  lambda: Camera.orthographic(-1, eye=(0, 0, 1), target=(0, 0, 0))):
         with pytest.raises(ValueError):
             call()
+
+
+def reference_eye_discs(vertices, faces, eyes, irises):
+    """eye_discs written plainly in numpy: farthest-pair centre, summed face normal, radius."""
+    out = np.zeros((len(eyes), 7))
+    for e, tris in enumerate(eyes):
+        pts = vertices[np.unique(faces[tris])]
+        dist2 = ((pts[:, None] - pts[None]) ** 2).sum(-1)
+        i, j = np.unravel_index(np.argmax(dist2), dist2.shape)
+        tri = vertices[faces[tris]]
+        axis = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).sum(0)
+        out[e, :3] = (pts[i] + pts[j]) / 2
+        if len(irises):
+            out[e, :3] = irises[np.argmin(((irises - out[e, :3]) ** 2).sum(1))]
+        out[e, 3:6] = axis / np.linalg.norm(axis)
+        out[e, 6] = IRIS_SCALE * np.sqrt(dist2[i, j])
+    return out
+
+
+@pytest.mark.parametrize("irises", [np.zeros((0, 3)), np.array([[0.3, 0.2, 0.1], [-0.3, 0.2, 0.1]])])
+def test_eye_discs_match_reference(irises):
+    from codec.face_model import load_base_face
+
+    face = load_base_face()
+    faces = face.faces.astype(np.int32)
+    verts = face.vertices + np.random.default_rng(4).normal(0, 0.003, face.vertices.shape)
+    eyes = eye_components(faces, face.eye_faces)
+    got = eye_discs(verts, faces, *eye_pieces(faces, eyes), irises)
+    np.testing.assert_allclose(got, reference_eye_discs(verts, faces, eyes, irises), atol=1e-12)
+
+
+def test_camera_basis_is_a_copy_of_fixed_axes():
+    camera = Camera.perspective(30.0, eye=(1, 2, 5), target=(0, 0, 0))
+    axes = camera.basis()
+    np.testing.assert_allclose(axes @ axes.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(axes[2], np.array([1, 2, 5]) / np.sqrt(30))
+    axes[:] = 0.0
+    assert np.abs(camera.basis()).sum() > 0  # callers cannot disturb the camera
