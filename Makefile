@@ -14,7 +14,9 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	mkdir -p out
 	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg | $(VENV)/bin/fd-recv -o out/demo.mp4
-	@echo "wrote out/demo.mp4"
+	$(VENV)/bin/fd-enroll samples/grid_bbaf2n.mpg -o out/grid.fdface
+	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg --face out/grid.fdface | $(VENV)/bin/fd-recv -o out/demo-own-face.mp4
+	@echo "wrote out/demo.mp4 (generic shaded face) and out/demo-own-face.mp4 (the speaker's own face model)"
 
 test: $(STAMP)
 	$(PY) -m pytest -q

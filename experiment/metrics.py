@@ -11,19 +11,11 @@ what a face codec is for.
 import cv2
 import numpy as np
 
+from sender.calibrate import inter_ocular, lip_gap
+
 #: Lip landmarks of the tracker (outer and inner contours).
 MOUTH = (0, 13, 14, 17, 37, 39, 40, 61, 78, 80, 81, 82, 84, 87, 88, 91, 95, 146, 178, 181, 185, 191,
          267, 269, 270, 291, 308, 310, 311, 312, 314, 317, 318, 321, 324, 375, 402, 405, 409, 415)
-_EYES = ((33, 133), (362, 263))
-_UPPER_LIP, _LOWER_LIP = 13, 14
-
-
-def inter_ocular(landmarks: np.ndarray) -> np.ndarray:
-    """(t,) distance between the eye centres of (t, 468, 2+) landmarks."""
-    lm = np.asarray(landmarks)[..., :2]
-    right = lm[:, list(_EYES[0])].mean(axis=1)
-    left = lm[:, list(_EYES[1])].mean(axis=1)
-    return np.linalg.norm(left - right, axis=1)
 
 
 def akd(reference: np.ndarray, decoded: np.ndarray, indices=None) -> float:
@@ -52,15 +44,9 @@ def aligned(decoded: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return np.stack([z.real, z.imag], axis=-1)
 
 
-def mouth_opening(landmarks: np.ndarray) -> np.ndarray:
-    """(t,) inner-lip gap over inter-ocular distance."""
-    lm = np.asarray(landmarks)[..., :2]
-    return np.linalg.norm(lm[:, _UPPER_LIP] - lm[:, _LOWER_LIP], axis=1) / inter_ocular(lm)
-
-
 def opening_correlation(reference: np.ndarray, decoded: np.ndarray) -> float:
     """Pearson correlation of the mouth opening of two keypoint tracks (frames with a face in both)."""
-    a, b = mouth_opening(reference), mouth_opening(decoded)
+    a, b = lip_gap(np.asarray(reference)[..., :2]), lip_gap(np.asarray(decoded)[..., :2])
     both = ~(np.isnan(a) | np.isnan(b))
     if both.sum() < 3 or a[both].std() == 0 or b[both].std() == 0:
         return float("nan")

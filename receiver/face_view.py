@@ -23,11 +23,12 @@ def portrait_camera(face: BaseFace) -> Camera:
 
 
 def face_renderer(face: BaseFace, size: tuple[int, int]) -> Renderer:
-    """The receiver's look: the default lights, dark mouth and painted eyes; the face's own
-    texture when it has one (a personal model), else the plain shaded material."""
+    """The receiver's look: the default lights and a dark mouth; a personal model (with a
+    texture) shows its own eyes from the photo, the plain shaded face gets painted ones."""
     textured = face.texture is not None
-    return Renderer(face.faces, size=size, mouth_faces=face.mouth_faces, eye_faces=face.eye_faces,
-                    background=BACKGROUND, uv=face.uv if textured else None, texture=face.texture)
+    return Renderer(face.faces, size=size, mouth_faces=face.mouth_faces,
+                    eye_faces=None if textured else face.eye_faces, background=BACKGROUND,
+                    uv=face.uv if textured else None, texture=face.texture)
 
 
 class FaceView:

@@ -76,7 +76,14 @@ def choose_rest(candidates: list[tuple[int, np.ndarray, np.ndarray]], neutral: i
     return min(candidates, key=lambda c: lip_gap(c[1]))[0]
 
 
-def lip_gap(landmarks: np.ndarray) -> float:
-    """Inner-lip gap of (468, 3) landmarks over their inter-ocular distance (a scale-free mouth opening)."""
-    eyes = landmarks[list(EYES[0])].mean(axis=0), landmarks[list(EYES[1])].mean(axis=0)
-    return float(np.linalg.norm(landmarks[UPPER_LIP] - landmarks[LOWER_LIP]) / np.linalg.norm(eyes[0] - eyes[1]))
+def inter_ocular(landmarks: np.ndarray) -> np.ndarray:
+    """Distance between the eye centres of (..., 468, d) landmarks -> (...): the face's yardstick."""
+    lm = np.asarray(landmarks, dtype=np.float64)
+    return np.linalg.norm(lm[..., EYES[0], :].mean(axis=-2) - lm[..., EYES[1], :].mean(axis=-2), axis=-1)
+
+
+def lip_gap(landmarks: np.ndarray) -> np.ndarray:
+    """Inner-lip gap of (..., 468, d) landmarks over their inter-ocular distance -> (...):
+    a scale-free mouth opening."""
+    lm = np.asarray(landmarks, dtype=np.float64)
+    return np.linalg.norm(lm[..., UPPER_LIP, :] - lm[..., LOWER_LIP, :], axis=-1) / inter_ocular(lm)

@@ -32,6 +32,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--params", choices=("paper", "full"), default="paper",
                    help="paper: the paper's 13 parameters and head rotation (default); "
                         "full: plus brows, lids, cheeks and head translation")
+    p.add_argument("--face", metavar="FILE.fdface",
+                   help="the person's face model from fd-enroll: fitted here and carried once at the start "
+                        "of the stream (its bytes are counted apart from the per-frame rate); default: the "
+                        "generic base face")
+    p.add_argument("--face-by-id", action="store_true",
+                   help="with --face, send only the model's id: the receiver holds the file (fd-recv --face)")
     p.add_argument("--neutral", type=int, metavar="FRAME",
                    help="frame index (from 0) of the person's rest face; default: the frame of the "
                         "first second with the mouth most closed")
@@ -54,6 +60,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error("--neutral takes a frame index from 0")
     if args.smoothing < 0:
         p.error("--smoothing must be 0 or more")
+    if args.face_by_id and args.face is None:
+        p.error("--face-by-id goes with --face FILE")
     return args
 
 
@@ -69,7 +77,7 @@ def _run(args) -> int:
 
     source = open_source(args.input, args.camera, args.fps)
     session = SendSession(source, args.quality, args.frames_per_packet, args.params,
-                          args.neutral, args.smoothing)
+                          args.neutral, args.smoothing, args.face, embed_face=not args.face_by_id)
     sink = None
     try:
         for packets in session.packets():

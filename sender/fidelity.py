@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from codec.deform import EXTENDED_PARAMS, Deformer
-from sender.calibrate import EYES
+from sender.calibrate import inter_ocular
 
 
 @dataclass(frozen=True)
@@ -24,11 +24,6 @@ class Fidelity:
     @property
     def relative(self) -> float:
         return self.error / self.frozen if self.frozen > 0 else 0.0
-
-
-def inter_ocular(vertices: np.ndarray) -> float:
-    """Distance between the eye centres of (468, 3) vertices."""
-    return float(np.linalg.norm(vertices[list(EYES[0])].mean(axis=0) - vertices[list(EYES[1])].mean(axis=0)))
 
 
 def fidelity(deformer: Deformer, targets: np.ndarray, params: np.ndarray, names, landmarks) -> Fidelity:

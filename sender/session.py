@@ -2,9 +2,11 @@
 
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 
+from codec.face_file import load_face_file
 from codec.face_model import load_base_face
 from protocol.stream import DEFAULT_QUALITY, Header, PacketEncoder, frame_bytes, steps_for
 from sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
@@ -17,22 +19,29 @@ class SendSession:
     source: a path (video file, image directory or %d pattern) or an opened
     source (``sender.sources``); layout: "paper" or "full" (``analysis.LAYOUTS``);
     neutral: the rest frame's index (default: chosen in the first second);
-    smoothing: One Euro strength (0: off).
+    smoothing: One Euro strength (0: off); face_file: a personal face model (fd-enroll) to fit
+    and render instead of the generic face, carried in the stream when ``embed_face``.
     """
 
     def __init__(self, source, quality: int = DEFAULT_QUALITY, frames_per_packet: int = 2,
-                 layout: str = "paper", neutral: int | None = None, smoothing: float = 1.0) -> None:
+                 layout: str = "paper", neutral: int | None = None, smoothing: float = 1.0,
+                 face_file: str | None = None, embed_face: bool = True) -> None:
         from sender.tracker import FaceTracker
 
         self.source = open_source(source) if isinstance(source, str) else source
-        face = load_base_face()
+        model = b""
+        if face_file is None:
+            face = load_base_face()
+        else:
+            face = load_face_file(face_file)
+            model = Path(face_file).read_bytes() if embed_face else b""
         fps = self.source.fps
         self.analyser = FaceAnalyser(FaceTracker(), face, fps, layout, calibration_frames=round(fps),
                                      neutral=neutral, smoothing=Smoothing(smoothing))
         names = self.analyser.names
-        self.header = Header(fps, names, steps_for(names, quality), face.content_id,
-                             quality=quality, key_interval=max(1, min(255, round(fps))))
-        self.encoder = PacketEncoder(self.header, frames_per_packet)
+        self.header = Header(fps, names, steps_for(names, quality), face.content_id, quality=quality,
+                             key_interval=max(1, min(255, round(fps))), model_size=len(model))
+        self.encoder = PacketEncoder(self.header, frames_per_packet, model)
         self.frames: list[FrameAnalysis] = []
         self.stream_bytes = 0  # as a byte stream (sync bytes included), header excluded
         self.header_bytes = 0

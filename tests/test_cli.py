@@ -1,5 +1,6 @@
 """fd-send and fd-recv end to end on the bundled clip, and every user mistake as one line."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -159,3 +160,41 @@ def test_bad_arguments_are_one_line(args, prog):
     result = run(args)
     assert_one_line_error(result, prog)
     assert result.returncode == 2
+
+
+@pytest.fixture(scope="module")
+def face_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("face") / "me.fdface"
+    result = run([sys.executable, "-m", "sender.enroll", str(CLIP), "-o", str(path), "-q"])
+    assert result.returncode == 0, result.stderr.decode()
+    return path
+
+
+def test_a_personal_face_travels_in_the_stream(face_file, tmp_path):
+    sent = run(SEND + [str(CLIP), "--face", str(face_file), "--json"])
+    assert sent.returncode == 0, sent.stderr.decode()
+    stats = json.loads(sent.stderr.decode().strip().splitlines()[-1])
+    assert stats["header_bytes"] > face_file.stat().st_size  # the model goes once, counted apart
+    assert stats["bits_per_frame"] < 200
+    out = tmp_path / "out.y4m"
+    result = run(RECV + ["-q", "-o", str(out), "--size", "64"], stdin=sent.stdout)
+    assert result.returncode == 0, result.stderr.decode()
+    _, count = parse_y4m(out.read_bytes())
+    assert count == clip_frames()
+
+
+def test_a_face_sent_by_id_needs_the_file_at_the_receiver(face_file, tmp_path):
+    sent = run(SEND + [str(CLIP), "--face", str(face_file), "--face-by-id", "-q"])
+    assert sent.returncode == 0, sent.stderr.decode()
+    assert len(sent.stdout) < face_file.stat().st_size
+    refused = run(RECV + ["-q", "-o", str(tmp_path / "a.y4m"), "--size", "64"], stdin=sent.stdout)
+    assert_one_line_error(refused, "fd-recv")
+    assert "--face" in refused.stderr.decode()
+    accepted = run(RECV + ["-q", "-o", str(tmp_path / "b.y4m"), "--size", "64", "--face", str(face_file)],
+                   stdin=sent.stdout)
+    assert accepted.returncode == 0, accepted.stderr.decode()
+
+
+def test_face_by_id_without_a_face_is_refused():
+    result = run(SEND + [str(CLIP), "--face-by-id"])
+    assert_one_line_error(result, "fd-send")

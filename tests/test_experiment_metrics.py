@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from experiment.metrics import MOUTH, akd, face_mask, mouth_opening, opening_correlation, psnr, ssim
+from experiment.metrics import MOUTH, akd, face_mask, opening_correlation, psnr, ssim
+from sender.calibrate import lip_gap
 
 
 def track(t=10, seed=0):
@@ -41,7 +42,7 @@ def test_frames_without_a_face_are_left_out():
 
 def test_mouth_opening_correlation():
     ref = track()
-    np.testing.assert_allclose(mouth_opening(ref)[-1], np.linalg.norm(ref[-1, 13] - ref[-1, 14]) / 80.0)
+    np.testing.assert_allclose(lip_gap(ref)[-1], np.linalg.norm(ref[-1, 13] - ref[-1, 14]) / 80.0)
     assert opening_correlation(ref, ref) == pytest.approx(1.0)
     frozen = np.repeat(ref[:1], len(ref), axis=0)
     assert np.isnan(opening_correlation(ref, frozen))
