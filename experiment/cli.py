@@ -33,6 +33,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                    metavar="Q", help="our quality levels (default 1 2 3 4 5)")
     p.add_argument("--layouts", nargs="+", default=["paper", "full"], choices=("paper", "full"),
                    help="our parameter sets (default paper full)")
+    p.add_argument("--faces", nargs="+", default=["generic", "own"], choices=("generic", "own"),
+                   help="our receiver's face: the generic shaded one, and/or the speaker's own model made "
+                        "by fd-enroll from the clip (default both)")
     p.add_argument("--baselines", nargs="+", default=["x264", "x265", "av1"], choices=("x264", "x265", "av1"),
                    help="conventional codecs (default all three)")
     p.add_argument("--bitrates", type=float, nargs="+", default=[8, 12, 16, 24, 32, 48, 64, 96], metavar="KBPS",
@@ -63,8 +66,8 @@ def _run(args) -> int:
             clip = prepare(path, size, work, args.seconds)
             say(f"fd-experiment: {clip.name} at {size}x{size}: {len(clip.frames)} frames at {clip.fps:g} fps")
             prepared.append({"name": clip.name, "path": str(clip.path), "fps": clip.fps})
-    tasks = [{**c, "kind": "ours", "layout": layout, "quality": q, "work": str(work)}
-             for c in prepared for layout in args.layouts for q in args.qualities]
+    tasks = [{**c, "kind": "ours", "layout": layout, "quality": q, "own": face == "own", "work": str(work)}
+             for c in prepared for face in args.faces for layout in args.layouts for q in args.qualities]
     tasks += [{**c, "kind": codec, "bps": int(kbps * 1000)}
               for c in prepared for codec in args.baselines for kbps in args.bitrates]
     rows = []
@@ -118,24 +121,26 @@ def execute(task: dict) -> dict:
 
     clip = _clip(task["name"], task["path"], task["fps"])
     if task["kind"] == "ours":
-        return run_ours(clip, task["quality"], task["layout"], Path(task["work"]))[0]
+        return run_ours(clip, task["quality"], task["layout"], Path(task["work"]), task["own"])[0]
     return run_baseline(clip, task["kind"], task["bps"])[0]
 
 
 def _side_by_side(clip, rows: list, out: Path) -> None:
-    """original | ours (the middle-bitrate run) | x264 at the bitrate nearest ours."""
+    """original | ours (the middle-bitrate run, own face if run) | x264 at the bitrate nearest ours."""
     from experiment.report import side_by_side
     from experiment.runs import run_baseline, run_ours
 
     size = clip.frames[0].shape[0]
     same = [r for r in rows if r["clip"] == clip.name and r["size"] == size]
     mine = sorted((r for r in same if r["codec"].startswith("ours")), key=lambda r: r["bitrate_bps"])
+    mine = [r for r in mine if r["codec"].endswith("-own")] or mine
     theirs = [r for r in same if r["codec"] == "x264"]
     if not mine or not theirs:
         return
     ours_row = mine[len(mine) // 2]
     near = min(theirs, key=lambda r: abs(r["bitrate_bps"] - ours_row["bitrate_bps"]))
-    _, ours = run_ours(clip, int(ours_row["setting"][1:]), ours_row["codec"][5:], out / "work")
+    layout = ours_row["codec"].split("-")[1]
+    _, ours = run_ours(clip, int(ours_row["setting"][1:]), layout, out / "work", ours_row["codec"].endswith("-own"))
     _, x264 = run_baseline(clip, "x264", int(near["setting"][:-3]))
     side_by_side(out / f"side_by_side_{clip.name}_{size}.mp4", clip.fps, [
         ("original", clip.frames),

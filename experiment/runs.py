@@ -37,21 +37,35 @@ def measure(clip: Clip, decoded: list) -> dict:
     }
 
 
-def run_ours(clip: Clip, quality: int, layout: str, work: Path) -> tuple[dict, list]:
-    """fd-send then fd-recv on the clip's crop; returns the row and the decoded frames."""
+def enroll(clip: Clip, work: Path) -> Path:
+    """The speaker's own face model, made by fd-enroll from the clip itself (once per clip and size)."""
+    path = Path(work) / f"{clip.name}_{clip.frames[0].shape[0]}.fdface"
+    if not path.exists():
+        _tool("sender.enroll", str(clip.path), "-o", str(path), "-q")
+    return path
+
+
+def run_ours(clip: Clip, quality: int, layout: str, work: Path, own_face: bool = False) -> tuple[dict, list]:
+    """fd-send then fd-recv on the clip's crop, with the generic face or the speaker's own model
+    (shared beforehand: its bytes count as one-off, with the stream header); returns the row and
+    the decoded frames."""
     size = clip.frames[0].shape[0]
-    stream = Path(work) / f"{clip.name}_{size}_{layout}_q{quality}.fd"
+    name = f"ours-{layout}" + ("-own" if own_face else "")
+    stream = Path(work) / f"{clip.name}_{size}_{name}_q{quality}.fd"
+    face = ["--face", str(enroll(clip, work))] if own_face else []
     started = time.perf_counter()
-    _tool("sender.cli", str(clip.path), "--quality", str(quality), "--params", layout, "-o", str(stream), "-q")
+    _tool("sender.cli", str(clip.path), "--quality", str(quality), "--params", layout, "-o", str(stream), "-q",
+          *(face + ["--face-by-id"] if own_face else []))
     encode_s = time.perf_counter() - started
     started = time.perf_counter()
-    decoded = read_y4m(_tool("receiver.cli", str(stream), "-o", "-", "--size", str(size), "-q"))
+    decoded = read_y4m(_tool("receiver.cli", str(stream), "-o", "-", "--size", str(size), "-q", *face))
     decode_s = time.perf_counter() - started
     data = stream.read_bytes()
     header = 1 + packet_size(data, 1)
+    model = Path(face[1]).stat().st_size if own_face else 0
     n = len(clip.frames)
-    row = {"clip": clip.name, "size": size, "codec": f"ours-{layout}", "setting": f"q{quality}",
-           "frames": n, "fps": clip.fps, "stream_bytes": len(data) - header, "oneoff_bytes": header,
+    row = {"clip": clip.name, "size": size, "codec": name, "setting": f"q{quality}",
+           "frames": n, "fps": clip.fps, "stream_bytes": len(data) - header, "oneoff_bytes": header + model,
            "bitrate_bps": 8 * (len(data) - header) * clip.fps / n,
            "encode_fps": n / encode_s, "decode_fps": n / decode_s}
     return {**row, **measure(clip, decoded)}, decoded

@@ -18,7 +18,7 @@ CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
 def results(tmp_path_factory):
     out = tmp_path_factory.mktemp("experiment")
     code = main([str(CLIP), "--out", str(out), "--seconds", "2", "--sizes", "128", "--qualities", "1", "3",
-                 "--layouts", "paper", "--baselines", "x264", "--bitrates", "40", "--jobs", "1", "-q"])
+                 "--layouts", "paper", "--faces", "generic", "own", "--baselines", "x264", "--bitrates", "40", "--jobs", "1", "-q"])
     assert code == 0
     return out, json.loads((out / "results.json").read_text())
 
@@ -26,9 +26,10 @@ def results(tmp_path_factory):
 def test_one_row_per_run_in_csv_and_json(results):
     out, rows = results
     assert sorted((r["codec"], r["setting"]) for r in rows) == [
-        ("ours-paper", "q1"), ("ours-paper", "q3"), ("x264", "40000bps")]
+        ("ours-paper", "q1"), ("ours-paper", "q3"), ("ours-paper-own", "q1"), ("ours-paper-own", "q3"),
+        ("x264", "40000bps")]
     with open(out / "results.csv") as f:
-        assert len(list(csv.DictReader(f))) == 3
+        assert len(list(csv.DictReader(f))) == 5
     for row in rows:
         assert row["frames"] == 50 and row["size"] == 128
         assert 0.0 <= row["akd_aligned"] < 0.5 and row["faces_found"] > 0.9
@@ -36,10 +37,12 @@ def test_one_row_per_run_in_csv_and_json(results):
 
 def test_our_bitrate_is_the_stream_file_without_its_header(results):
     out, rows = results
-    for row in (r for r in rows if r["codec"] == "ours-paper"):
-        data = (out / "work" / f"grid_bbaf2n_128_paper_{row['setting']}.fd").read_bytes()
+    model = (out / "work" / "grid_bbaf2n_128.fdface").stat().st_size
+    for row in (r for r in rows if r["codec"].startswith("ours")):
+        data = (out / "work" / f"grid_bbaf2n_128_{row['codec']}_{row['setting']}.fd").read_bytes()
         header = 1 + packet_size(data, 1)
-        assert (row["stream_bytes"], row["oneoff_bytes"]) == (len(data) - header, header)
+        oneoff = header + (model if row["codec"].endswith("-own") else 0)
+        assert (row["stream_bytes"], row["oneoff_bytes"]) == (len(data) - header, oneoff)
         assert row["bitrate_bps"] == pytest.approx(8 * row["stream_bytes"] * row["fps"] / row["frames"])
 
 
