@@ -1,13 +1,14 @@
 """Sender benchmarks: speed at 640x480 and 1280x720 on one core, and per-clip bits and fidelity.
 
     python benchmarks/bench_sender.py speed      # frames/s: tracking, estimation (pose + fit), both
-    python benchmarks/bench_sender.py clips      # bits/frame at q3 and geometry fidelity per dev clip
+    python benchmarks/bench_sender.py clips      # bits/frame and geometry fidelity per dev clip and layout
 
 Speed uses the bundled clip scaled to each height and padded to each width. The clip table uses the
-dev clips in ../shared/samples/dev; fidelity is ``sender.fidelity`` over the
-lower-face landmarks (mouth, cheeks, chin, jaw line) and the upper-face ones
-(brows, lids, cheeks), relative error (0 perfect, 1 a frozen face) and
-absolute error over inter-ocular distance.
+dev clips in ../shared/samples/dev; fidelity is ``sender.fidelity`` (rms error over rms motion
+about the neutral: 0 perfect, 1 a frozen face; and the rms error over inter-ocular distance) over
+its 41 mouth and jaw landmarks, over all lower-face landmarks the layout's model moves and over the
+upper-face ones. The rate-distortion column quantises the fitted parameters at each quality level
+(the decoder's values; the encoder's skip of static frames is not applied to the fidelity).
 """
 
 import argparse
@@ -20,9 +21,10 @@ import numpy as np
 from codec.deform import Deformer
 from codec.face_model import load_base_face
 from protocol.stream import Header, PacketEncoder, frame_bytes, steps_for
-from sender.analysis import FaceAnalyser, Smoothing
+from protocol.quantise import QUALITIES
+from sender.analysis import LAYOUTS, FaceAnalyser, Smoothing
 from sender.calibrate import lip_gap
-from sender.fidelity import fidelity
+from sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity
 from sender.sources import VideoSource
 from sender.tracker import FaceTracker
 
@@ -75,8 +77,8 @@ def speed() -> None:
         print(f"| {size[0]}x{size[1]} | {track:.0f} | {rates['paper']:.0f} | {rates['full']:.0f} | {both:.0f} |")
 
 
-def bits_per_frame(names, results, fps: float) -> float:
-    header = Header(fps, names, steps_for(names, 3), load_base_face().content_id, key_interval=round(fps))
+def bits_per_frame(names, results, fps: float, quality: int = 3) -> float:
+    header = Header(fps, names, steps_for(names, quality), load_base_face().content_id, key_interval=round(fps))
     encoder = PacketEncoder(header, 2)
     total = sum(len(frame_bytes(encoder.frame(r.params, r.landmarks is not None))) for r in results)
     return 8 * (total + len(frame_bytes(encoder.end()))) / len(results)
@@ -92,34 +94,47 @@ def lag(params: np.ndarray, gap: np.ndarray, span: int = 5) -> float:
     return i - span + shift
 
 
+def analyse(face, landmarks: list, fps: float, layout: str, smoothing: float):
+    """(analyser, all FrameAnalysis, (n, 468, 3) targets and (n, k) params of the frames with a face)."""
+    analyser = FaceAnalyser(Replay(), face, fps, layout, round(fps), smoothing=Smoothing(smoothing))
+    results = list(analyser.run(landmarks))
+    seen = [r for r in results if r.target is not None]
+    return analyser, results, np.stack([r.target for r in seen]), np.stack([r.params for r in seen])
+
+
 def clips(smoothing: float) -> None:
     face = load_base_face()
     deformer = Deformer(face)
-    print(f"smoothing {smoothing:g}; bits/frame at q3, 2 frames per packet; fidelity relative (absolute / IOD)")
-    print("| clip | bits paper | bits full | theta lag (frames) | lower face, paper = full | upper face, paper | upper face, full |")
-    print("|---|---|---|---|---|---|---|")
+    print(f"smoothing {smoothing:g}; 2 frames per packet; fidelity relative (absolute / IOD): mouth and jaw = "
+          f"the {len(MOUTH_JAW_LANDMARKS)} landmarks of sender.fidelity (rms), lower and upper face = all the "
+          "landmarks each model moves; rate-distortion: bits/frame and mouth-and-jaw fidelity of the "
+          "quantised parameters at quality 1..5")
+    print("| clip | layout | bits q3 | theta lag (frames) | mouth and jaw | lower face | upper face | "
+          "rate-distortion q1..q5 (bits: fidelity) |")
+    print("|---|---|---|---|---|---|---|---|")
     for path in sorted(DEV.glob("*.landmarks.npz")):
         video = next(p for p in DEV.glob(path.name.replace(".landmarks.npz", ".*")) if p != path)
         source = VideoSource(video)
         tracker = FaceTracker()
         landmarks = [tracker.track(f) for f in source.frames()]
-        row = {}
-        for layout in ("paper", "full"):
-            analyser = FaceAnalyser(Replay(), face, source.fps, layout, round(source.fps),
-                                    smoothing=Smoothing(smoothing))
-            results = list(analyser.run(landmarks))
-            seen = [r for r in results if r.target is not None]
-            targets, params = np.stack([r.target for r in seen]), np.stack([r.params for r in seen])
-            row[layout] = (bits_per_frame(analyser.names, results, source.fps),
-                           fidelity(deformer, targets, params, analyser.names, analyser.fit.lower),
-                           fidelity(deformer, targets, params, analyser.names, analyser.fit.upper_landmarks))
-            if layout == "paper":
-                found = [lm is not None for lm in landmarks]
-                theta = np.array([r.params[0] for r, f in zip(results, found) if f])
-                row["lag"] = lag(theta, np.array([lip_gap(lm) for lm in landmarks if lm is not None]))
-        f = lambda x: f"{x.relative:.2f} ({x.error:.3f})"
-        print(f"| {video.stem} | {row['paper'][0]:.1f} | {row['full'][0]:.1f} | {row['lag']:+.2f} | "
-              f"{f(row['paper'][1])} | {f(row['paper'][2])} | {f(row['full'][2])} |")
+        found = [lm is not None for lm in landmarks]
+        gap = np.array([lip_gap(lm) for lm in landmarks if lm is not None])
+        for layout in LAYOUTS:
+            analyser, results, targets, params = analyse(face, landmarks, source.fps, layout, smoothing)
+            names = analyser.names
+            theta = np.array([r.params[0] for r, f in zip(results, found) if f])
+            rd = []
+            for q in QUALITIES:
+                steps = steps_for(names, q)
+                decoded = np.rint(params / steps) * steps
+                rd.append(f"{bits_per_frame(names, results, source.fps, q):.0f}: "
+                          f"{fidelity(deformer, targets, decoded, names).relative:.2f}")
+            f = lambda x: f"{x.relative:.2f} ({x.error:.3f})"
+            print(f"| {video.stem} | {layout} | {bits_per_frame(names, results, source.fps):.1f} | "
+                  f"{lag(theta, gap):+.2f} | {f(fidelity(deformer, targets, params, names))} | "
+                  f"{f(fidelity(deformer, targets, params, names, analyser.fit.lower))} | "
+                  f"{f(fidelity(deformer, targets, params, names, analyser.fit.upper_landmarks))} | "
+                  f"{', '.join(rd)} |")
 
 
 def main() -> None:

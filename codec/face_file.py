@@ -10,15 +10,27 @@ feature points, regions and loops (``meta``, as samples/base_face/feature_points
 so a file is complete on its own and the Deformer takes it unchanged. The face
 id is the sha256 of the whole file (``sha256sum face.fdface`` prints it): what
 the stream header names is exactly what the receiver holds, bit for bit.
+
+At rest a face file can be sealed with a stream key (``fd-enroll --key``)::
+
+    "FDSEAL" | version (1) | salt (16) | nonce (12) | AES-256-GCM ciphertext of the file | tag (16)
+
+the AES key derived by HKDF-SHA256 from the key and the salt; the face id
+stays the plain file's, and the readers here open it given the key.
 """
 
 import hashlib
 import json
+import os
 import struct
 from pathlib import Path
 
 import cv2
 import numpy as np
+from cryptography.exceptions import InvalidTag
+from cryptography.hazmat.primitives import hashes
+from cryptography.hazmat.primitives.ciphers.aead import AESGCM
+from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
 from codec.errors import InputError
 from codec.face_model import N_LANDMARKS, BaseFace, build_face, load_base_face, normalise
@@ -28,6 +40,7 @@ VERSION = 1
 MAX_FILE = 16 << 20  # the stream header's limit for an in-band model
 MAX_FACES = 4096
 MAX_TEXTURE_SIDE = 2048
+SEALED = b"FDSEAL\x01"
 _PREFIX = struct.Struct("<6sBBI")
 
 
@@ -118,8 +131,32 @@ def _decode_texture(data: bytes, bad) -> np.ndarray:
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
-def load_face_file(path: str | Path) -> BaseFace:
-    """The face model in a file; InputError (one line) if it is missing or not one."""
+def _file_key(key: bytes, salt: bytes) -> AESGCM:
+    return AESGCM(HKDF(hashes.SHA256(), 32, salt, b"facedeform face file v1").derive(key))
+
+
+def seal_face(data: bytes, key: bytes) -> bytes:
+    """A face file's bytes encrypted and authenticated with ``key`` (a stream key)."""
+    salt, nonce = os.urandom(16), os.urandom(12)
+    head = SEALED + salt + nonce
+    return head + _file_key(key, salt).encrypt(nonce, data, head)
+
+
+def open_face(data: bytes, key: bytes | None, origin: str = "face model") -> bytes:
+    """The plain bytes of a face file, sealed or not; InputError without the right key."""
+    if not data.startswith(SEALED):
+        return data
+    if key is None:
+        raise InputError(f"{origin} is encrypted: give --key FILE")
+    head = data[:len(SEALED) + 28]
+    try:
+        return _file_key(key, head[len(SEALED):-12]).decrypt(head[-12:], data[len(head):], head)
+    except (InvalidTag, ValueError):
+        raise InputError(f"{origin}: cannot decrypt (sealed with another key, or damaged)") from None
+
+
+def read_face_bytes(path: str | Path, key: bytes | None = None) -> bytes:
+    """A face file's plain bytes (opened with ``key`` if sealed); InputError (one line) if unreadable."""
     path = Path(path)
     try:
         data = path.read_bytes()
@@ -127,13 +164,18 @@ def load_face_file(path: str | Path) -> BaseFace:
         raise InputError(f"{path}: not a file") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    return decode_face(data, str(path))
+    return open_face(data, key, str(path))
 
 
-def save_face_file(data: bytes, path: str | Path) -> str:
-    """Writes a face file's bytes; returns its id."""
+def load_face_file(path: str | Path, key: bytes | None = None) -> BaseFace:
+    """The face model in a file, sealed or not; InputError (one line) if it is missing or not one."""
+    return decode_face(read_face_bytes(path, key), str(path))
+
+
+def save_face_file(data: bytes, path: str | Path, key: bytes | None = None) -> str:
+    """Writes a face file's bytes, sealed with ``key`` if given; returns its id (the plain file's)."""
     try:
-        Path(path).write_bytes(data)
+        Path(path).write_bytes(data if key is None else seal_face(data, key))
     except OSError as exc:
         raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from None
     return face_id(data)

@@ -171,13 +171,10 @@ class DatagramDecoder(PacketDecoder):
     """One packet per datagram: :meth:`receive` each, in arrival order."""
 
 
-class StreamDecoder:
-    """Incremental decoder of a byte stream: :meth:`feed` any chunking, :meth:`close` at its end."""
+class WrapsPacketDecoder:
+    """What a decoder built around a :class:`PacketDecoder` (``self._core``) shows of it."""
 
-    def __init__(self) -> None:
-        self._core = PacketDecoder()
-        self._buf = bytearray()
-        self._seen = 0
+    _core: PacketDecoder
 
     @property
     def header(self) -> Header | None:
@@ -190,6 +187,18 @@ class StreamDecoder:
     @property
     def ended(self) -> bool:
         return self._core.ended
+
+
+class ByteStreamDecoder(WrapsPacketDecoder):
+    """Incremental decoding of a byte stream: :meth:`feed` any chunking, :meth:`close` at its end.
+
+    Subclasses scan their buffer (``_scan``) and say why no stream was found (``_no_stream``).
+    """
+
+    def __init__(self) -> None:
+        self._core = PacketDecoder()
+        self._buf = bytearray()
+        self._seen = 0
 
     def feed(self, data: bytes) -> list:
         """Events completed by ``data``."""
@@ -204,8 +213,7 @@ class StreamDecoder:
         """
         events = self._scan(final=True)
         if self._core.header is None:
-            raise BitstreamError("empty input: no fd stream" if not self._seen
-                                 else "input is not an fd stream (no valid header)")
+            raise BitstreamError(self._no_stream())
         if not self._core.ended:
             events += self._core.damage("stream stopped before its end mark", always=True)
         return events
@@ -219,21 +227,41 @@ class StreamDecoder:
                 pos = len(buf) if pos < 0 else pos
                 events += self._skip(pos - start, "bytes between packets")
                 continue
-            try:
-                size = packet_size(buf, pos + 1)
-            except BitstreamError:
-                size = 0
-            if not final and (size is None or pos + 1 + size > len(buf)):
-                break  # wait for the rest: size is at most MAX_BODY plus a few bytes
-            got = self._core.accept(buf[pos + 1:pos + 1 + size]) if size else None
-            if got is None:
-                events += self._skip(1, "packet fails its check or cannot be decoded")
-                pos += 1
-            else:
-                events += got
-                pos += 1 + size
+            step = self._packet_at(pos, final)
+            if step is None:
+                break  # wait for the rest: a packet is at most MAX_BODY plus a few bytes
+            got, used = step
+            events += got
+            pos += used
         del buf[:pos]
         return events
+
+    def _packet_at(self, pos: int, final: bool) -> tuple[list, int] | None:
+        """Events of the packet whose sync byte is at ``pos`` and the bytes used; None to wait for more."""
+        raise NotImplementedError
+
+    def _no_stream(self) -> str:
+        raise NotImplementedError
+
+
+class StreamDecoder(ByteStreamDecoder):
+    """The clear format's byte-stream decoder."""
+
+    def _no_stream(self) -> str:
+        return "empty input: no fd stream" if not self._seen else "input is not an fd stream (no valid header)"
+
+    def _packet_at(self, pos: int, final: bool) -> tuple[list, int] | None:
+        buf = self._buf
+        try:
+            size = packet_size(buf, pos + 1)
+        except BitstreamError:
+            size = 0
+        if not final and (size is None or pos + 1 + size > len(buf)):
+            return None
+        got = self._core.accept(buf[pos + 1:pos + 1 + size]) if size else None
+        if got is None:
+            return self._skip(1, "packet fails its check or cannot be decoded"), 1
+        return got, 1 + size
 
     def _skip(self, n: int, reason: str) -> list:
         self._core.stats.skipped_bytes += n

@@ -13,6 +13,7 @@ EPILOG = """examples:
   fd-recv talk.fd -o out.y4m --size 256 --dump decoded.npz
   fd-recv --listen udp://:5000 --face me.fdface -o - | ffplay -
   fd-recv --listen tcp://0.0.0.0:5000 -o call.mp4 --json
+  fd-recv --listen udp://:5000 --key call.key -o call.mp4
 """
 
 
@@ -36,6 +37,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--face", metavar="FILE",
                    help="the sender's face model (fd-enroll); default: the model the stream carries, "
                         "else the generic face")
+    p.add_argument("--key", metavar="FILE",
+                   help="the stream is sealed with this pre-shared key (fd-keygen): packets that fail "
+                        "authentication or replay are dropped and counted; also opens a sealed --face file")
     p.add_argument("--show", action="store_true", help="also show the video in a window (needs a display)")
     p.add_argument("--timeout", type=float, default=5.0, metavar="S",
                    help="with --listen: end after S seconds without data once the stream has started (default 5)")
@@ -63,23 +67,25 @@ def _run(args) -> int:
     from codec.errors import InputError
     from codec.face_file import load_face_file
     from receiver.output import Display, open_writer
-    from receiver.progress import progress_for
+    from codec.progress import progress_for
     from receiver.session import ReceiveSession
     from receiver.transport import Listener, open_file
+    from sender.keygen import read_key
 
     if args.output == "-" and sys.stdout.isatty():
         raise InputError("refusing to write video to a terminal: use -o FILE.mp4 or pipe it (| ffplay -)")
-    face = load_face_file(args.face) if args.face else None
+    key = read_key(args.key) if args.key else None
+    face = load_face_file(args.face, key) if args.face else None
     display = Display() if args.show else None
 
     def open_sinks(fps: float) -> list:
         sinks = [open_writer(args.output, fps, args.size, sys.stdout.buffer)] if args.output else []
         return sinks + ([display] if display else [])
 
-    listener = Listener(args.listen, args.timeout) if args.listen else None
+    listener = Listener(args.listen, args.timeout, key) if args.listen else None
     if listener and not args.quiet:
         print(f"fd-recv: listening on {listener.url}", file=sys.stderr, flush=True)
-    source = listener.source() if listener else open_file(args.input or "-", sys.stdin.buffer)
+    source = listener.source() if listener else open_file(args.input or "-", sys.stdin.buffer, key)
     session = ReceiveSession(open_sinks, args.size, face, f"--face {args.face}", args.fps)
     progress = progress_for("fd-recv", args.quiet or args.json) if source.size else None
     update = (lambda: progress.update(source.consumed, source.size, f"{len(session.decoded)} frames")) \

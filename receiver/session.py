@@ -55,7 +55,7 @@ class ReceiveSession:
                 on_batch()
         decoder = source.decoder
         if decoder.header is None:
-            raise BitstreamError("no fd stream arrived (no valid header)")
+            raise BitstreamError(source.no_stream())
         if decoder.ended:
             return
         if source.timed_out:
@@ -125,8 +125,10 @@ class ReceiveSession:
             sink.close()
 
     def stats(self, seconds: float) -> dict:
-        """Frames decoded, written, concealed and interpolated, decoder counters, latency in ms."""
+        """Frames decoded, written, concealed and interpolated, decoder counters, latency in ms;
+        for a sealed stream the packets opened and rejected."""
         s = self.source.decoder.stats if self.source is not None else None
+        secure = getattr(self.source.decoder, "security", None) if self.source is not None else None
         ms = np.array(self.latency) * 1000 if self.latency else np.zeros(1)
         return {
             "frames": len(self.decoded), "written": self.written,
@@ -141,6 +143,7 @@ class ReceiveSession:
             "latency_ms": {"median": round(float(np.median(ms)), 2), "p95": round(float(np.percentile(ms, 95)), 2),
                            "max": round(float(ms.max()), 2)},
             "frames_per_second": round(len(self.decoded) / max(seconds, 1e-9), 1),
+            "security": secure.as_dict() if secure else None,
         }
 
     def summary(self, seconds: float) -> str:
@@ -148,7 +151,7 @@ class ReceiveSession:
         return (f"{s['frames']} frames rendered ({s['concealed']} concealed, {s['damage_reports']} damage reports), "
                 f"{s['written']} written at {s['output_fps']:g} fps, {s['face']} face, latency "
                 f"{s['latency_ms']['median']:.1f} ms median, {s['latency_ms']['max']:.1f} ms max, "
-                f"{s['frames_per_second']:.1f} frames/s")
+                f"{s['frames_per_second']:.1f} frames/s" + _security_summary(s["security"]))
 
     def write_dump(self, path: str) -> None:
         """Per decoded frame: parameters, frame number and flags; the layout and rate."""
@@ -158,3 +161,10 @@ class ReceiveSession:
             seq=np.array([f.seq for f in self.decoded]), face_seen=np.array([f.face_seen for f in self.decoded]),
             concealed=np.array([f.concealed for f in self.decoded]),
             interpolated=np.array([f.interpolated for f in self.decoded]), fps=header.fps)
+
+
+def _security_summary(s: dict | None) -> str:
+    if s is None:
+        return ""
+    return (f"; sealed: {s['opened']} packets authentic, {s['auth_failures']} failed authentication, "
+            f"{s['replays']} replays dropped")

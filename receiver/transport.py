@@ -5,7 +5,8 @@ chunk or datagram and the ``time.perf_counter()`` at which it arrived, so the
 session can measure each frame's latency from arrival to output. A socket
 source ends when the stream's end mark arrives, when the peer closes (TCP), or
 after ``idle`` seconds without data once the stream has started (a UDP end
-mark can be lost, and a sender can vanish).
+mark can be lost, and a sender can vanish). With a key every source decodes
+through ``protocol.secure_stream`` instead: only authentic packets count.
 """
 
 import os
@@ -14,7 +15,10 @@ import time
 from collections.abc import Iterator
 from urllib.parse import urlsplit
 
-from codec.errors import InputError
+from codec.errors import BitstreamError, InputError
+from protocol.framing import SYNC
+from protocol.secure import MAGIC
+from protocol.secure_stream import SecureDatagramDecoder, SecureStreamDecoder
 from protocol.stream import Damage, DatagramDecoder, StreamDecoder
 
 CHUNK = 1 << 16
@@ -25,14 +29,15 @@ class ByteSource:
     """A byte stream (file, stdin, accepted TCP connection) through a :class:`StreamDecoder`.
 
     read: returns up to n bytes, b"" at the end; raises TimeoutError when idle
-    (sockets). ``size``: total bytes if known (a file), for progress.
+    (sockets). ``size``: total bytes if known (a file), for progress; ``key``: the stream is sealed.
     """
 
-    def __init__(self, read, size: int | None = None, closing=None) -> None:
-        self.decoder = StreamDecoder()
+    def __init__(self, read, size: int | None = None, closing=None, key: bytes | None = None) -> None:
+        self.decoder = StreamDecoder() if key is None else SecureStreamDecoder(key)
         self.size, self.consumed = size, 0
         self.timed_out = False
         self._read, self._closing = read, closing
+        self._head = b""  # the first bytes, to tell a sealed stream from junk
 
     def batches(self) -> Iterator[tuple[list, float]]:
         try:
@@ -45,33 +50,44 @@ class ByteSource:
                 if not chunk:
                     break
                 self.consumed += len(chunk)
+                self._head = self._head or chunk[:len(MAGIC) + 1]
                 yield self.decoder.feed(chunk), time.perf_counter()
+            try:
+                events = self.decoder.close()
+            except BitstreamError:
+                if self._head == bytes([SYNC]) + MAGIC and isinstance(self.decoder, StreamDecoder):
+                    raise BitstreamError(_SEALED) from None
+                raise
             # the end's damage is the truncation, which the session reports itself
-            yield [e for e in self.decoder.close() if not isinstance(e, Damage)], time.perf_counter()
+            yield [e for e in events if not isinstance(e, Damage)], time.perf_counter()
         finally:
             if self._closing is not None:
                 self._closing()
 
+    def no_stream(self) -> str:
+        return _no_stream(self.decoder, self._head == bytes([SYNC]) + MAGIC)
 
-def open_file(path: str, stdin) -> ByteSource:
+
+def open_file(path: str, stdin, key: bytes | None = None) -> ByteSource:
     """``-`` (the binary ``stdin``) or a stream file."""
     if path == "-":
-        return ByteSource(getattr(stdin, "read1", stdin.read))
+        return ByteSource(getattr(stdin, "read1", stdin.read), key=key)
     try:
         f = open(path, "rb")
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-    return ByteSource(f.read1, os.fstat(f.fileno()).st_size, f.close)
+    return ByteSource(f.read1, os.fstat(f.fileno()).st_size, f.close, key)
 
 
 class UdpSource:
     """Datagrams on a bound UDP socket, one packet each, through a :class:`DatagramDecoder`."""
 
-    def __init__(self, sock: socket.socket, idle: float) -> None:
-        self.decoder = DatagramDecoder()
+    def __init__(self, sock: socket.socket, idle: float, key: bytes | None = None) -> None:
+        self.decoder = DatagramDecoder() if key is None else SecureDatagramDecoder(key)
         self.size = None
         self.timed_out = False
         self._sock, self._idle = sock, idle
+        self._sealed = False  # a sealed stream's preamble arrived
 
     def batches(self) -> Iterator[tuple[list, float]]:
         try:
@@ -82,9 +98,23 @@ class UdpSource:
                     self.timed_out = True
                     return
                 self._sock.settimeout(self._idle)  # the stream has started: from now on, silence ends it
+                self._sealed = self._sealed or data.startswith(MAGIC)
                 yield self.decoder.receive(data), time.perf_counter()
         finally:
             self._sock.close()
+
+    def no_stream(self) -> str:
+        return _no_stream(self.decoder, self._sealed)
+
+
+_SEALED = "the stream is sealed (encrypted): give fd-recv --key FILE"
+
+
+def _no_stream(decoder, sealed: bool) -> str:
+    """Why no stream could be decoded, as one line for the user."""
+    if hasattr(decoder, "no_stream"):
+        return decoder.no_stream()
+    return _SEALED if sealed else "no fd stream arrived (no valid header)"
 
 
 def parse_listen(url: str) -> tuple[str, str, int]:
@@ -102,12 +132,12 @@ def parse_listen(url: str) -> tuple[str, str, int]:
 class Listener:
     """A bound socket for ``--listen``; :meth:`source` waits for the stream (blocking)."""
 
-    def __init__(self, url: str, idle: float) -> None:
+    def __init__(self, url: str, idle: float, key: bytes | None = None) -> None:
         self.scheme, host, port = parse_listen(url)
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         kind = socket.SOCK_DGRAM if self.scheme == "udp" else socket.SOCK_STREAM
         self._sock = socket.socket(family, kind)
-        self._idle = idle
+        self._idle, self._key = idle, key
         try:
             if kind == socket.SOCK_STREAM:  # a port in TIME_WAIT may be reused; one in use still fails
                 self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -123,13 +153,13 @@ class Listener:
     def source(self):
         """UDP: the datagram source at once; TCP: the first connection's bytes, once it is accepted."""
         if self.scheme == "udp":
-            return UdpSource(self._sock, self._idle)
+            return UdpSource(self._sock, self._idle, self._key)
         try:
             conn, _ = self._sock.accept()
         finally:
             self._sock.close()
         conn.settimeout(self._idle)
-        return ByteSource(conn.recv, closing=conn.close)
+        return ByteSource(conn.recv, closing=conn.close, key=self._key)
 
     def close(self) -> None:
         self._sock.close()

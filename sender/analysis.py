@@ -14,6 +14,7 @@ import numpy as np
 from codec.deform import HEAD_DEPTH, PAPER_PARAMS, POSE_PARAMS, Deformer
 from codec.errors import NoFaceError
 from codec.face_model import BaseFace
+from codec.mouth import MOUTH_PARAMS
 from codec.upper_face import UPPER_PARAMS
 from protocol.quantise import VECTOR_STEP, steps_for
 from sender.calibrate import RestFace, choose_rest, fapu_ratios
@@ -26,6 +27,7 @@ RELAX = 0.8
 LAYOUTS = {
     "paper": PAPER_PARAMS + POSE_PARAMS[:3],
     "full": PAPER_PARAMS + UPPER_PARAMS + POSE_PARAMS,
+    "mouth": PAPER_PARAMS + MOUTH_PARAMS + POSE_PARAMS[:3],
 }
 #: How far the receiver's camera is from the face (base-face units), to turn scale changes into depth.
 VIEW_DISTANCE = 3.9
@@ -64,8 +66,9 @@ class FrameAnalysis:
 class FaceAnalyser:
     """Runs a tracker and the model fit over frames; yields one :class:`FrameAnalysis` per frame.
 
-    layout: "paper" (the paper's 13 and head rotation) or "full" (plus brows,
-    lids, cheeks and head translation); calibration_frames: how many frames with
+    layout: "paper" (the paper's 13 and head rotation), "full" (plus brows,
+    lids, cheeks and head translation) or "mouth" (the paper's 13, the richer
+    mouth and jaw of codec/mouth.py, head rotation); calibration_frames: how many frames with
     a face to choose the rest face from; neutral: a frame index to use instead.
     """
 
@@ -75,7 +78,7 @@ class FaceAnalyser:
         self._tracker = tracker
         self._face = face
         self._base = np.asarray(face.vertices, dtype=np.float64)
-        self.fit = ModelFit(Deformer(face))
+        self.fit = ModelFit(Deformer(face), mouth=layout == "mouth")
         self._stable = list(STABLE_LANDMARKS)
         self._reference = self._base[self._stable]
         self._pivot = 0.5 * (self._base.min(axis=0) + self._base.max(axis=0)) - [0.0, 0.0, HEAD_DEPTH]

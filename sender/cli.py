@@ -11,6 +11,7 @@ EPILOG = """examples:
   fd-send talk.mp4 -o talk.fd --dump talk-params.npz --params full
   fd-send frames/%04d.png --fps 30 -o tcp://127.0.0.1:5000
   fd-send --camera 0 -o udp://127.0.0.1:5000
+  fd-send talk.mp4 --key call.key -o udp://127.0.0.1:5000
 """
 
 
@@ -29,9 +30,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("-o", "--output", default="-", metavar="DEST",
                    help="a file, - for stdout (default), tcp://HOST:PORT (connect and write the stream) "
                         "or udp://HOST:PORT (one packet per datagram)")
-    p.add_argument("--params", choices=("paper", "full"), default="paper",
+    p.add_argument("--params", choices=("paper", "full", "mouth"), default="paper",
                    help="paper: the paper's 13 parameters and head rotation (default); "
-                        "full: plus brows, lids, cheeks and head translation")
+                        "full: plus brows, lids, cheeks and head translation; "
+                        "mouth: the paper's plus six more lip points and jaw translation")
     p.add_argument("--face", metavar="FILE.fdface",
                    help="the person's face model from fd-enroll: fitted here and carried once at the start "
                         "of the stream (its bytes are counted apart from the per-frame rate); default: the "
@@ -44,11 +46,21 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--smoothing", type=float, default=1.0, metavar="S",
                    help="temporal smoothing strength: 0 off, 1 default, 2 twice as strong "
                         "(steadier and cheaper, slower to follow)")
-    p.add_argument("--quality", type=int, choices=range(1, 6), default=3, metavar="1-5",
+    rate = p.add_mutually_exclusive_group()
+    rate.add_argument("--bitrate", type=float, metavar="KBPS",
+                      help="aim at this many kbit/s instead of a --quality: the finest level whose typical "
+                           "rate fits (open loop, measured on the dev clips; a guide, not a cap)")
+    rate.add_argument("--quality", type=int, choices=range(1, 6), default=3, metavar="1-5",
                    help="quantiser fineness, 1 (coarse, fewest bits) to 5 (fine); each level halves the "
                         "steps of the one below (default 3: 0.25 degree, 0.002 face heights)")
     p.add_argument("--frames-per-packet", type=int, choices=range(1, 33), default=2, metavar="N",
                    help="frames sent together (1-32): fewer framing bits, N-1 frames more latency (default 2)")
+    p.add_argument("--key", metavar="FILE",
+                   help="encrypt and authenticate every packet (face model included) with this pre-shared "
+                        "key (fd-keygen); costs 6 bytes per packet at the default tag (docs/security.md); "
+                        "also opens a --face file sealed with it")
+    p.add_argument("--tag-bits", type=int, choices=range(32, 129, 8), metavar="N",
+                   help="with --key: authentication tag length, 32 (default) to 128 in steps of 8")
     p.add_argument("--dump", metavar="FILE.npz",
                    help="also write per-frame landmarks, pose-free targets, head pose and unquantised parameters")
     p.add_argument("--json", action="store_true", help="statistics as one JSON object on stderr")
@@ -60,8 +72,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error("--neutral takes a frame index from 0")
     if args.smoothing < 0:
         p.error("--smoothing must be 0 or more")
+    if args.tag_bits is not None and args.key is None:
+        p.error("--tag-bits goes with --key FILE")
     if args.face_by_id and args.face is None:
         p.error("--face-by-id goes with --face FILE")
+    if args.bitrate is not None and args.bitrate <= 0:
+        p.error("--bitrate takes a positive number of kbit/s")
     return args
 
 
@@ -71,23 +87,35 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
+    from codec.progress import progress_for
+    from protocol.secure import DEFAULT_TAG_BITS
+    from protocol.stream import quality_for_bitrate
+    from sender.keygen import read_key
     from sender.session import SendSession
     from sender.sources import open_source
     from sender.transport import open_sink
 
+    key = read_key(args.key) if args.key else None
     source = open_source(args.input, args.camera, args.fps)
-    session = SendSession(source, args.quality, args.frames_per_packet, args.params,
-                          args.neutral, args.smoothing, args.face, embed_face=not args.face_by_id)
+    quality = args.quality if args.bitrate is None else quality_for_bitrate(1000 * args.bitrate, source.fps)
+    progress = progress_for("fd-send", args.quiet or args.json) if source.length else None
+    session = SendSession(source, quality, args.frames_per_packet, args.params,
+                          args.neutral, args.smoothing, args.face, embed_face=not args.face_by_id,
+                          key=key, tag_bits=args.tag_bits or DEFAULT_TAG_BITS)
     sink = None
     try:
         for packets in session.packets():
             if sink is None:  # opened only once there is something to send
                 sink = open_sink(args.output)
             sink.write(packets)
+            if progress:
+                progress.update(len(session.frames), source.length, f"{len(session.frames)} frames")
     except KeyboardInterrupt:  # a camera runs until stopped: close the stream properly
         if sink is not None:
             sink.write(session.end())
     finally:
+        if progress:
+            progress.close()
         if sink is not None:
             sink.close()
         if args.dump and session.frames:

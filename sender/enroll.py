@@ -41,6 +41,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="how much of the clip --auto chooses from, counted from the first face (default 2)")
     p.add_argument("--texture-size", type=int, default=TEXTURE_SIZE, metavar="PX",
                    help=f"texture width and height in texels, 64-1024 (default {TEXTURE_SIZE})")
+    p.add_argument("--key", metavar="FILE",
+                   help="encrypt the face model at rest with this key (fd-keygen); fd-send and fd-recv open it "
+                        "with the same --key")
     p.add_argument("-q", "--quiet", action="store_true", help="print only the id")
     args = p.parse_args(argv)
     if args.frame is not None and args.frame < 0:
@@ -61,19 +64,22 @@ def _run(args) -> int:
     from codec.face_file import personal_face, save_face_file
     from codec.face_model import load_base_face
     from codec.texture import texture_from_frame
+    from sender.keygen import read_key
     from sender.sources import open_source
 
+    key = read_key(args.key) if args.key else None
     source = open_source(args.input)
     base = load_base_face()
     index, frame, landmarks, aligned, score = _neutral_frame(source, base, args.frame, args.seconds)
     rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
     texture = texture_from_frame(rgb, landmarks[:, :2], base.uv, base.faces, args.texture_size)
     data = personal_face(aligned, texture, base)
-    ident = save_face_file(data, args.output)
+    ident = save_face_file(data, args.output, key)
     print(ident)
     if not args.quiet:
         print(f"fd-enroll: face model {ident[:12]} from frame {index} (lip gap {score[0]:.3f}, head turned "
-              f"{score[1]:.1f} degrees), {len(data)} bytes in {args.output}", file=sys.stderr)
+              f"{score[1]:.1f} degrees), {len(data)} bytes in {args.output}"
+              f"{' (encrypted)' if key else ''}", file=sys.stderr)
     return 0
 
 

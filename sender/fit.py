@@ -7,7 +7,8 @@ points. The model is linear where it can be:
 - the jaw rotation R(theta) = I + sin(theta) K + (1 - cos(theta)) K^2 (Rodrigues),
   so every lower-face vertex is c0 + sin(theta) c1 + (1 - cos(theta)) c2 + B v,
   with v the 12 sent vector components and c1, c2, B fixed by the region map;
-- the upper face (brows, lids, cheeks) is a fixed linear basis.
+- the upper face (brows, lids, cheeks) and the richer mouth (codec/mouth.py)
+  are fixed linear bases; the mouth's is fitted jointly with the paper's vectors.
 
 For a fixed theta the best v is a ridge least-squares solve; eliminating v
 leaves a quadratic form in (sin, 1 - cos), so theta is a 1-D minimisation of a
@@ -18,6 +19,7 @@ import numpy as np
 
 from codec.deform import FREE, JAW_FOLLOWING, Deformer
 from codec.regions import FEATURE_NAMES
+from codec.mouth import MOUTH_PARAMS
 from codec.upper_face import UPPER_PARAMS
 
 THETA_RANGE = (-15.0, 45.0)  # degrees: a little closing past rest, a wide yawn
@@ -41,19 +43,20 @@ def _ridge_solver(b: np.ndarray, ridge: float) -> np.ndarray:
 class ModelFit:
     """Fits paper parameters (and, with ``upper``, the upper-face ones) to pose-free landmarks.
 
-    ``lower`` (k,) are the landmarks the paper's deformation moves (mouth, cheeks
-    below the eyes, chin and jaw line); ``upper_landmarks`` (u,) those the upper
-    face moves. Targets are (468, 3) in base-face units: the base face plus the
-    person's displacement from their rest face.
+    ``lower`` (k,) are the landmarks the paper's deformation (and with ``mouth``
+    the richer mouth) moves: mouth, cheeks below the eyes, chin and jaw line;
+    ``upper_landmarks`` (u,) those the upper face moves. Targets are (468, 3) in
+    base-face units: the base face plus the person's displacement from their rest face.
     """
 
-    def __init__(self, deformer: Deformer, ridge: float = RIDGE) -> None:
+    def __init__(self, deformer: Deformer, ridge: float = RIDGE, mouth: bool = False) -> None:
         regions = deformer.regions
         col = {n: i for i, n in enumerate(FEATURE_NAMES)}
         free = [col[n] for n in FREE]
         follow = [col[n] for n in JAW_FOLLOWING]
         w = regions.weights
-        self.lower = np.flatnonzero(regions.jaw | (np.abs(w[:, free + follow]).sum(axis=1) > 1e-9))
+        moved = regions.jaw | (np.abs(w[:, free + follow]).sum(axis=1) > 1e-9)
+        self.lower = np.flatnonzero(moved | (deformer.mouth.region >= 0) if mouth else moved)
         base = np.asarray(deformer.face.vertices, dtype=np.float64)
         origin, axis = deformer.hinge_axis
         k1 = _cross_matrix(axis)
@@ -66,6 +69,9 @@ class ModelFit:
         self._c1 = (rel @ k1.T + wf @ (frel @ k1.T)).ravel()
         self._c2 = (rel @ k2.T + wf @ (frel @ k2.T)).ravel()
         b = np.kron(w[self.lower][:, free], np.eye(3))  # (3k, 12): vertex displacement per vector component
+        if mouth:
+            rows = deformer.mouth.basis.reshape(len(base), 3, -1)[self.lower].reshape(-1, len(MOUTH_PARAMS))
+            b = np.hstack([b, rows])  # (3k, 12 + len(MOUTH_PARAMS))
         self._solve = _ridge_solver(b, ridge)  # (12, 3k)
         # min_v |u - B v|^2 + ridge |v|^2 = u^T M u with M = I - B (B^T B + ridge I)^-1 B^T
         mc1 = self._c1 - b @ (self._solve @ self._c1)
@@ -82,7 +88,8 @@ class ModelFit:
         self._base = base
 
     def paper(self, target: np.ndarray) -> np.ndarray:
-        """(468, 3) target -> (13,) parameters in PAPER_PARAMS order (theta in degrees)."""
+        """(468, 3) target -> (13,) parameters in PAPER_PARAMS order (theta in degrees),
+        followed with ``mouth`` by the (len(MOUTH_PARAMS),) mouth parameters."""
         d = np.asarray(target, dtype=np.float64)[self.lower].ravel() - self._c0
         a = self._mc @ d  # (2,)
         s, c = np.sin(_GRID), 1.0 - np.cos(_GRID)
@@ -107,7 +114,7 @@ class ModelFit:
         return self._upper_solve @ d.ravel()
 
     def lower_mesh(self, params: np.ndarray) -> np.ndarray:
-        """(k, 3) model positions of ``lower`` for (13,) paper parameters (for fidelity checks)."""
+        """(k, 3) model positions of ``lower`` for the parameters :meth:`paper` returns."""
         t = np.radians(params[0])
         m = self._c0 + np.sin(t) * self._c1 + (1.0 - np.cos(t)) * self._c2 + self._b @ params[1:]
         return m.reshape(-1, 3)

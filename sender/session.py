@@ -2,12 +2,12 @@
 
 import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import numpy as np
 
-from codec.face_file import load_face_file
+from codec.face_file import decode_face, read_face_bytes
 from codec.face_model import load_base_face
+from protocol.secure import DEFAULT_TAG_BITS, SecureSealer
 from protocol.stream import DEFAULT_QUALITY, Header, PacketEncoder, frame_bytes, steps_for
 from sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
 from sender.sources import open_source
@@ -20,12 +20,14 @@ class SendSession:
     source (``sender.sources``); layout: "paper" or "full" (``analysis.LAYOUTS``);
     neutral: the rest frame's index (default: chosen in the first second);
     smoothing: One Euro strength (0: off); face_file: a personal face model (fd-enroll) to fit
-    and render instead of the generic face, carried in the stream when ``embed_face``.
+    and render instead of the generic face, carried in the stream when ``embed_face``; key: a
+    pre-shared key (``protocol.secure``) to seal every packet with, tags of ``tag_bits``.
     """
 
     def __init__(self, source, quality: int = DEFAULT_QUALITY, frames_per_packet: int = 2,
                  layout: str = "paper", neutral: int | None = None, smoothing: float = 1.0,
-                 face_file: str | None = None, embed_face: bool = True) -> None:
+                 face_file: str | None = None, embed_face: bool = True, key: bytes | None = None,
+                 tag_bits: int = DEFAULT_TAG_BITS) -> None:
         from sender.tracker import FaceTracker
 
         self.source = open_source(source) if isinstance(source, str) else source
@@ -33,8 +35,9 @@ class SendSession:
         if face_file is None:
             face = load_base_face()
         else:
-            face = load_face_file(face_file)
-            model = Path(face_file).read_bytes() if embed_face else b""
+            data = read_face_bytes(face_file, key)  # a sealed file opens with the stream's key
+            face = decode_face(data, face_file)
+            model = data if embed_face else b""
         fps = self.source.fps
         self.analyser = FaceAnalyser(FaceTracker(), face, fps, layout, calibration_frames=round(fps),
                                      neutral=neutral, smoothing=Smoothing(smoothing))
@@ -42,6 +45,7 @@ class SendSession:
         self.header = Header(fps, names, steps_for(names, quality), face.content_id, quality=quality,
                              key_interval=max(1, min(255, round(fps))), model_size=len(model))
         self.encoder = PacketEncoder(self.header, frames_per_packet, model)
+        self.sealer = None if key is None else SecureSealer(key, tag_bits)
         self.frames: list[FrameAnalysis] = []
         self.stream_bytes = 0  # as a byte stream (sync bytes included), header excluded
         self.header_bytes = 0
@@ -53,11 +57,13 @@ class SendSession:
         then what each frame completes, then the end mark."""
         for seq, result in enumerate(self.analyser.run(self.source.frames())):
             if seq == 0:
-                header = self.encoder.header()
+                header = self._seal(self.encoder.header())
+                if self.sealer is not None:
+                    header.insert(0, self.sealer.preamble())
                 self.header_bytes = len(frame_bytes(header))
                 yield header
             self.frames.append(result)
-            packets = self.encoder.frame(result.params, result.landmarks is not None)
+            packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
             self.stream_bytes += len(frame_bytes(packets))
             if packets:
                 yield packets
@@ -68,9 +74,12 @@ class SendSession:
         if self._ended or not self.frames:
             return []
         self._ended = True
-        packets = self.encoder.end()
+        packets = self._seal(self.encoder.end())
         self.stream_bytes += len(frame_bytes(packets))
         return packets
+
+    def _seal(self, packets: list[bytes]) -> list[bytes]:
+        return packets if self.sealer is None else self.sealer.seal_all(packets)
 
     def stream(self) -> Iterator[bytes]:
         """The same as a byte stream."""
@@ -84,9 +93,11 @@ class SendSession:
         bits = 8 * self.stream_bytes / max(n, 1)
         rest = self.analyser.rest
         return {"frames": n, "frames_without_face": self.analyser.frames_without_face,
+                "quality": self.header.quality,
                 "bits_per_frame": round(bits, 1), "kbit_per_s": round(bits * self.source.fps / 1000, 3),
                 "fps": self.source.fps, "header_bytes": self.header_bytes, "layout": list(self.header.names),
                 "rest_frame": None if rest is None else rest.index,
+                "tag_bits": None if self.sealer is None else 8 * self.sealer.tag_bytes,
                 "frames_per_second": round(n / max(time.perf_counter() - self._started, 1e-9), 1)}
 
     def summary(self) -> str:

@@ -41,9 +41,12 @@ class VideoSource:
         if ok and first is not None and first.ndim == 3:
             self._frames = self._opencv(cap, first)
             fps = cap.get(cv2.CAP_PROP_FPS)
+            count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+            self.length = count if count > 0 else None  # for progress only: containers may be wrong
         else:
             cap.release()
             first, fps, self._frames = self._pyav(path)
+            self.length = None
         self.fps = _rate(fps)
         self.size = (first.shape[1], first.shape[0])
 
@@ -95,6 +98,7 @@ class ImageSequence:
         first = self._read(self.paths[0])
         self.fps = _rate(fps)
         self.size = (first.shape[1], first.shape[0])
+        self.length = len(self.paths)
 
     @staticmethod
     def _numbered(pattern: str) -> list[Path]:
@@ -135,6 +139,7 @@ class CameraSource:
         self._first: np.ndarray | None = first
         self.fps = _rate(self._cap.get(cv2.CAP_PROP_FPS))
         self.size = (first.shape[1], first.shape[0])
+        self.length = None  # live: no end to show progress toward
 
     def frames(self) -> Iterator[np.ndarray]:
         if self._first is not None:

@@ -198,3 +198,23 @@ def test_a_face_sent_by_id_needs_the_file_at_the_receiver(face_file, tmp_path):
 def test_face_by_id_without_a_face_is_refused():
     result = run(SEND + [str(CLIP), "--face-by-id"])
     assert_one_line_error(result, "fd-send")
+
+
+def test_every_layout_is_offered_by_the_cli():
+    from sender.analysis import LAYOUTS
+    from sender.cli import parse_args
+
+    for layout in LAYOUTS:
+        assert parse_args(["clip.mp4", "--params", layout]).params == layout
+
+
+def test_bitrate_picks_a_quality_level():
+    low = run(SEND + [str(CLIP), "--bitrate", "0.5", "-o", "/dev/null", "--json"])
+    high = run(SEND + [str(CLIP), "--bitrate", "50", "-o", "/dev/null", "--json"])
+    stats = [json.loads(r.stderr.decode().strip().splitlines()[-1]) for r in (low, high)]
+    assert (stats[0]["quality"], stats[1]["quality"]) == (1, 5)
+    assert stats[0]["bits_per_frame"] < stats[1]["bits_per_frame"]
+
+
+def test_bitrate_and_quality_exclude_each_other():
+    assert_one_line_error(run(SEND + [str(CLIP), "--bitrate", "1", "--quality", "2"]), "fd-send")

@@ -12,6 +12,7 @@ from numpy.testing import assert_allclose
 
 from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
 from codec.face_model import load_base_face
+from codec.mouth import MOUTH_PARAMS
 from codec.regions import project_weights
 from codec.upper_face import UPPER_PARAMS, gaze_direction
 
@@ -29,7 +30,7 @@ deform_st = st.tuples(
     st.floats(-20, 30), *[st.floats(-0.08, 0.08) for _ in range(12)],
     *[st.floats(-0.05, 0.05) for _ in range(4)], *[st.floats(-0.5, 1.0) for _ in range(2)],
     *[st.floats(-0.04, 0.04) for _ in range(2)], st.floats(-30, 30), st.floats(-30, 30),
-).map(lambda t: np.r_[t, np.zeros(6)])
+).map(lambda t: np.r_[t, np.zeros(N - len(t))])
 
 
 def params(**named) -> np.ndarray:
@@ -40,8 +41,9 @@ def params(**named) -> np.ndarray:
 
 
 def test_layout():
-    assert EXTENDED_PARAMS[:13] == PAPER_PARAMS and len(set(EXTENDED_PARAMS)) == N == 29
-    assert EXTENDED_PARAMS[13:] == UPPER_PARAMS + ("gaze_yaw", "gaze_pitch", "rx", "ry", "rz", "tx", "ty", "tz")
+    assert EXTENDED_PARAMS[:13] == PAPER_PARAMS and len(set(EXTENDED_PARAMS)) == N == 29 + len(MOUTH_PARAMS)
+    assert EXTENDED_PARAMS[29:] == MOUTH_PARAMS  # appended: older layouts keep their slots
+    assert EXTENDED_PARAMS[13:29] == UPPER_PARAMS + ("gaze_yaw", "gaze_pitch", "rx", "ry", "rz", "tx", "ty", "tz")
 
 
 def test_zero_params_identity():
@@ -135,7 +137,7 @@ def test_pure_rotation_keeps_distances(rx, ry, rz):
 @given(deform_st, st.tuples(*[st.floats(-0.5, 0.5)] * 3))
 def test_translation_shifts_every_vertex_equally(p, shift):
     moved = p.copy()
-    moved[-3:] = shift
+    moved[[IDX["tx"], IDX["ty"], IDX["tz"]]] = shift
     assert_allclose(DEF.deform_extended(moved) - DEF.deform_extended(p), np.tile(shift, (len(X), 1)), atol=1e-12)
 
 
@@ -170,3 +172,54 @@ def test_gaze_moves_iris_not_mesh():
 def test_bad_params_raise(bad):
     with pytest.raises(ValueError):
         DEF.deform_extended(bad)
+
+
+# The richer mouth and jaw (codec/mouth.py)
+
+def test_mouth_points_move_by_their_vectors_and_paper_points_stay():
+    from codec.mouth import MOUTH_POINTS
+    v = np.array([0.01, -0.02, 0.03])
+    for point, lm in MOUTH_POINTS.items():
+        p = params(**{f"{point}_{a}": c for a, c in zip("xyz", v)})
+        out = DEF.deform_extended(p)
+        assert_allclose(out[lm] - X[lm], v, atol=1e-12)
+        paper = [FACE.feature_points[n] for n in ("F1", "F2", "F3", "F4", "F8", "F9", "F14", "F15")]
+        assert_allclose(out[paper], X[paper], atol=1e-12)
+
+
+def test_mouth_slit_keeps_the_lips_apart():
+    loops = FACE.meta["loops"]
+    upper = sorted(set(loops["inner_lip_upper"]) - set(loops["inner_lip_lower"]))
+    lower = sorted(set(loops["inner_lip_lower"]) - set(loops["inner_lip_upper"]))
+    up = DEF.deform_extended(params(lip_ul_y=0.05, lip_ur_y=0.05, lip_uo_y=0.05)) - X
+    down = DEF.deform_extended(params(lip_ll_y=-0.05, lip_lr_y=-0.05, lip_lo_y=-0.05)) - X
+    assert_allclose(up[lower], 0.0, atol=1e-12)
+    assert_allclose(down[upper], 0.0, atol=1e-12)
+    f2, f3 = FACE.feature_points["F2"], FACE.feature_points["F3"]  # paper points: no vector here
+    assert (up[[v for v in upper if v != f2], 1] > 0).all() and (down[[v for v in lower if v != f3], 1] < 0).all()
+
+
+def test_jaw_shift_moves_the_mandible_rigidly_and_leaves_the_upper_face():
+    out = DEF.deform_extended(params(jaw_x=0.02, jaw_y=-0.01, jaw_z=0.005)) - X
+    assert_allclose(out[DEF.regions.jaw], np.tile([0.02, -0.01, 0.005], (DEF.regions.jaw.sum(), 1)), atol=1e-12)
+    assert_allclose(out[FIXED_LM], 0.0, atol=1e-12)
+
+
+def test_mouth_tiling_blends_agree_on_shared_edges_and_vanish_on_its_rim():
+    """Points on an edge shared by two tiles get the same weights from either; rim edges carry paper
+    points only, whose vectors are 0 here, so the mouth term is continuous (the slit aside)."""
+    from codec.mouth import MOUTH_POINTS
+    tris, o = DEF.mouth.triangles, DEF.regions.origin
+    t = np.linspace(0.05, 0.95, 7)[:, None]
+    count = {}
+    for k, tri in enumerate(tris):
+        for e in combinations(sorted(tri), 2):
+            count.setdefault(e, []).append(k)
+    for (a, b), tiles in count.items():
+        if len(tiles) == 1:
+            assert not {a, b} & set(MOUTH_POINTS.values())
+            continue
+        pts = X[a] + t * (X[b] - X[a])
+        w = [dict(zip(tris[k], project_weights(pts, X[tris[k]], o).T)) for k in tiles]
+        for v in (a, b):
+            assert_allclose(w[0][v], w[1][v], atol=1e-9)

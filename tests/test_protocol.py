@@ -11,7 +11,7 @@ from protocol.framing import DELTA, HEADER, build
 from protocol.header import MAX_MODEL, encode_header
 from protocol.quantise import QUALITIES, dequantise, quantise
 from protocol.stream import (Damage, DatagramDecoder, End, Frame, Header, Model, PacketEncoder, StreamDecoder,
-                             StreamEncoder, frame_bytes, steps_for)
+                             frame_bytes, steps_for)
 
 LAYOUTS = (PAPER_PARAMS, PAPER_PARAMS + ("rx", "ry", "rz"))
 FACE = "ab" * 32

@@ -5,6 +5,7 @@ import pytest
 
 from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
 from codec.face_model import load_base_face
+from codec.mouth import MOUTH_PARAMS
 from codec.upper_face import UPPER_PARAMS
 from sender.fidelity import fidelity
 from sender.fit import ModelFit
@@ -52,3 +53,15 @@ def test_fidelity_is_zero_for_the_model_and_one_for_a_frozen_face(model):
     assert frozen.relative == pytest.approx(1.0) and frozen.error > 0.01
     paper_only = fidelity(deformer, targets, p[:, :13], PAPER_PARAMS, fit.upper_landmarks)
     assert paper_only.relative == pytest.approx(1.0)  # the paper's set leaves the upper face at rest
+
+
+def test_mouth_fit_recovers_the_richer_mouth_and_leaves_the_paper_fit_alone(model):
+    deformer, paper_fit = model
+    fit = ModelFit(deformer, ridge=0.0, mouth=True)
+    mouth = [EXTENDED_PARAMS.index(n) for n in MOUTH_PARAMS]
+    rng = np.random.default_rng(4)
+    for p in random_faces(5, seed=3):
+        p[mouth] = rng.normal(0.0, 0.02, len(mouth))
+        target = deformer.deform_extended(p)
+        np.testing.assert_allclose(fit.paper(target), np.r_[p[:13], p[mouth]], atol=1e-6)
+    assert set(paper_fit.lower) <= set(fit.lower) and len(paper_fit.paper(target)) == 13
