@@ -16,7 +16,9 @@ demo: $(STAMP)
 	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg | $(VENV)/bin/fd-recv -o out/demo.mp4
 	$(VENV)/bin/fd-enroll samples/grid_bbaf2n.mpg -o out/grid.fdface
 	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg --face out/grid.fdface | $(VENV)/bin/fd-recv -o out/demo-own-face.mp4
-	@echo "wrote out/demo.mp4 (generic shaded face) and out/demo-own-face.mp4 (the speaker's own face model)"
+	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg --face out/grid.fdface --params personal | $(VENV)/bin/fd-recv -o out/demo-personal.mp4
+	@echo "wrote out/demo.mp4 (generic shaded face), out/demo-own-face.mp4 (the speaker's own face model)"
+	@echo "and out/demo-personal.mp4 (their own face and motion basis)"
 
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -2,6 +2,7 @@
 
     python benchmarks/bench_sender.py speed      # frames/s: tracking, estimation (pose + fit), both
     python benchmarks/bench_sender.py clips      # bits/frame and geometry fidelity per dev clip and layout
+    python benchmarks/bench_sender.py rd         # held-out fidelity against bits/frame, with the personal basis
 
 Speed uses the bundled clip scaled to each height and padded to each width. The clip table uses the
 dev clips in ../shared/samples/dev; fidelity is ``sender.fidelity`` (rms error over rms motion
@@ -9,6 +10,12 @@ about the neutral: 0 perfect, 1 a frozen face; and the rms error over inter-ocul
 its 41 mouth and jaw landmarks, over all lower-face landmarks the layout's model moves and over the
 upper-face ones. The rate-distortion column quantises the fitted parameters at each quality level
 (the decoder's values; the encoder's skip of static frames is not applied to the fidelity).
+
+``rd`` splits each clip in halves: the personal motion basis (sender/motion.py, as fd-enroll
+learns it, over the paper's fit or over the rest face) comes from the first half only, and every layout is measured on the second half (bits
+of that half coded as a stream of its own, fidelity of the decoded parameters), so the personal
+figures are what a call made after enrolment would get. It writes docs/results/rd_fidelity.csv
+and .png.
 """
 
 import argparse
@@ -102,6 +109,15 @@ def analyse(face, landmarks: list, fps: float, layout: str, smoothing: float):
     return analyser, results, np.stack([r.target for r in seen]), np.stack([r.params for r in seen])
 
 
+def dev_clips():
+    """(video path, its VideoSource, tracked landmarks per frame) for each dev clip."""
+    for path in sorted(DEV.glob("*.landmarks.npz")):
+        video = next(p for p in DEV.glob(path.name.replace(".landmarks.npz", ".*")) if p != path)
+        source = VideoSource(video)
+        tracker = FaceTracker()
+        yield video, source, [tracker.track(f) for f in source.frames()]
+
+
 def clips(smoothing: float) -> None:
     face = load_base_face()
     deformer = Deformer(face)
@@ -112,11 +128,7 @@ def clips(smoothing: float) -> None:
     print("| clip | layout | bits q3 | theta lag (frames) | mouth and jaw | lower face | upper face | "
           "rate-distortion q1..q5 (bits: fidelity) |")
     print("|---|---|---|---|---|---|---|---|")
-    for path in sorted(DEV.glob("*.landmarks.npz")):
-        video = next(p for p in DEV.glob(path.name.replace(".landmarks.npz", ".*")) if p != path)
-        source = VideoSource(video)
-        tracker = FaceTracker()
-        landmarks = [tracker.track(f) for f in source.frames()]
+    for video, source, landmarks in dev_clips():
         found = [lm is not None for lm in landmarks]
         gap = np.array([lip_gap(lm) for lm in landmarks if lm is not None])
         for layout in LAYOUTS:
@@ -137,12 +149,84 @@ def clips(smoothing: float) -> None:
                   f"{', '.join(rd)} |")
 
 
+def rd(smoothing: float, patterns: tuple[int, ...]) -> None:
+    import csv
+    import dataclasses
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from sender.motion import learn_motion, residuals
+
+    base = load_base_face()
+    rows = []
+    print(f"smoothing {smoothing:g}; 2 frames per packet; second half of each clip; cells: bits/frame: "
+          "mouth-and-jaw fidelity (relative), quality 1..5")
+    print("| clip | layout | q1 | q2 | q3 | q4 | q5 |")
+    print("|---|---|---|---|---|---|---|")
+    for video, source, landmarks in dev_clips():
+        half = len(landmarks) // 2
+        layouts = [(name, base, name) for name in LAYOUTS]
+        for over in ("paper", "rest"):
+            residual, vertices = residuals(landmarks[:half], Replay(), base, source.fps, over)
+            for m in patterns:
+                basis = learn_motion(residual, vertices, m, over)
+                if basis is not None:
+                    layouts.append(("personal", dataclasses.replace(base, motion=basis), f"personal {m}/{over}"))
+        for layout, face, label in layouts:
+            deformer = Deformer(face)
+            analyser, results, _, _ = analyse(face, landmarks, source.fps, layout, smoothing)
+            test = results[half:]
+            seen = [r for r in test if r.target is not None]
+            targets, params = np.stack([r.target for r in seen]), np.stack([r.params for r in seen])
+            cells = []
+            for q in QUALITIES:
+                steps = steps_for(analyser.names, q)
+                bits = bits_per_frame(analyser.names, test, source.fps, q)
+                fid = fidelity(deformer, targets, np.rint(params / steps) * steps, analyser.names).relative
+                rows.append({"clip": video.stem, "layout": label, "quality": q, "bits_per_frame": round(bits, 1),
+                             "fidelity": round(fid, 4)})
+                cells.append(f"{bits:.0f}: {fid:.2f}")
+            print(f"| {video.stem} | {label} | {' | '.join(cells)} |", flush=True)
+    out = ROOT / "docs" / "results" / "rd_fidelity"
+    with open(out.with_suffix(".csv"), "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    clips_seen = sorted({r["clip"] for r in rows})
+    fig, axes = plt.subplots(2, (len(clips_seen) + 1) // 2, figsize=(12, 7), sharex=True, sharey=True)
+    for ax, clip in zip(axes.ravel(), clips_seen):
+        for label in dict.fromkeys(r["layout"] for r in rows):
+            pts = [(r["bits_per_frame"], r["fidelity"]) for r in rows if r["clip"] == clip and r["layout"] == label]
+            ax.plot(*zip(*pts), "o-", ms=3, label=label)
+        ax.axhline(0.25, color="grey", lw=0.5, ls="--")
+        ax.axvline(40, color="grey", lw=0.5, ls="--")
+        ax.set_title(clip, fontsize=9)
+        ax.grid(alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("bits per frame (quality 1..5, left to right)")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("mouth and jaw error / motion")
+    axes.ravel()[0].legend(fontsize=7)
+    fig.suptitle("Held-out fidelity against rate (dashed: the issue's 0.25 at 40 bits)")
+    fig.tight_layout()
+    fig.savefig(out.with_suffix(".png"), dpi=90)
+    print(f"wrote {out}.csv and .png")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("what", choices=("speed", "clips"))
+    p.add_argument("what", choices=("speed", "clips", "rd"))
     p.add_argument("--smoothing", type=float, default=1.0)
+    p.add_argument("--patterns", type=int, nargs="*", default=[4, 6, 8], help="rd: motion basis sizes")
     args = p.parse_args()
-    speed() if args.what == "speed" else clips(args.smoothing)
+    if args.what == "speed":
+        speed()
+    elif args.what == "clips":
+        clips(args.smoothing)
+    else:
+        rd(args.smoothing, tuple(args.patterns))
 
 
 if __name__ == "__main__":

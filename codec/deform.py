@@ -10,8 +10,10 @@ Fixed points (F1, F5, F6, F7, F10, F11, F12, F13) have V = 0. Everything that
 does not depend on the parameters is precomputed, so deform() is a few numpy ops.
 
 deform_extended() adds the upper face (codec/upper_face.py: brows, lids,
-cheeks; gaze is for the renderer), the richer mouth and jaw (codec/mouth.py)
-and then a rigid head pose, with the parameters of EXTENDED_PARAMS.
+cheeks; gaze is for the renderer), the richer mouth and jaw (codec/mouth.py),
+the person's own motion basis when their face model has one
+(codec/motion_basis.py) and then a rigid head pose, with the parameters of
+EXTENDED_PARAMS.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from codec.face_model import BaseFace
+from codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS
 from codec.mouth import MOUTH_PARAMS, MouthModel, build_mouth
 from codec.regions import FEATURE_NAMES, RegionMap, build_region_map, feature_positions
 from codec.upper_face import GAZE_PARAMS, UPPER_PARAMS, EyeModel, UpperFace, build_upper_face
@@ -30,14 +33,16 @@ PAPER_PARAMS: tuple[str, ...] = (
 FREE = ("F2", "F3", "F8", "F9")  # sent, in PAPER_PARAMS order
 JAW_FOLLOWING = ("F4", "F14", "F15")
 POSE_PARAMS = ("rx", "ry", "rz", "tx", "ty", "tz")  # rotation vector (degrees), translation (base-face units)
-#: Mouth names come last so that the older layouts keep their slots.
-EXTENDED_PARAMS: tuple[str, ...] = PAPER_PARAMS + UPPER_PARAMS + GAZE_PARAMS + POSE_PARAMS + MOUTH_PARAMS
+#: Newer names come last so that the older layouts keep their slots.
+EXTENDED_PARAMS: tuple[str, ...] = (PAPER_PARAMS + UPPER_PARAMS + GAZE_PARAMS + POSE_PARAMS + MOUTH_PARAMS
+                                    + BASIS_PARAMS)
 HEAD_DEPTH = 0.6  # the head turns about a point this far behind the face's bounding-box centre
 _UPPER = slice(len(PAPER_PARAMS), len(PAPER_PARAMS) + len(UPPER_PARAMS))
 _GAZE = slice(_UPPER.stop, _UPPER.stop + len(GAZE_PARAMS))
 _ROT = slice(_GAZE.stop, _GAZE.stop + 3)
 _SHIFT = slice(_ROT.stop, _ROT.stop + 3)
 _MOUTH = slice(_SHIFT.stop, _SHIFT.stop + len(MOUTH_PARAMS))
+_BASIS = slice(_MOUTH.stop, _MOUTH.stop + MAX_COMPONENTS)
 
 
 def rotation_matrix(axis: np.ndarray, theta_deg: float) -> np.ndarray:
@@ -74,6 +79,8 @@ class Deformer:
         self.upper: UpperFace = build_upper_face(face, self.regions)
         self.eyes = EyeModel.fit(face)
         self.mouth: MouthModel = build_mouth(face, self.regions)
+        n = len(self._base)
+        self._motion = face.motion.matrix(n) if face.motion is not None else np.zeros((3 * n, MAX_COMPONENTS))
         self._pivot = 0.5 * (self._base.min(axis=0) + self._base.max(axis=0)) - [0.0, 0.0, HEAD_DEPTH]
 
     @property
@@ -118,11 +125,11 @@ class Deformer:
 
     def deform_extended(self, params: np.ndarray, f3_with_jaw: bool = False) -> np.ndarray:
         """(468, 3) float64 vertices from params (len(EXTENDED_PARAMS),): the paper's deformation,
-        plus the upper face and the mouth (precomputed linear terms), then the head pose. Gaze moves
-        no vertex."""
+        plus the upper face, the mouth and the motion basis (precomputed linear terms), then the head
+        pose. Gaze moves no vertex; basis coefficients past the face's own patterns move none either."""
         p = self._extended(params)
         out = self.deform(p[: len(PAPER_PARAMS)], f3_with_jaw)
-        out += (self.upper.basis @ p[_UPPER] + self.mouth.basis @ p[_MOUTH]).reshape(-1, 3)
+        out += (self.upper.basis @ p[_UPPER] + self.mouth.basis @ p[_MOUTH] + self._motion @ p[_BASIS]).reshape(-1, 3)
         rot, shift = self._pose(p)
         return (out - self._pivot) @ rot.T + self._pivot + shift
 

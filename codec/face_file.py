@@ -3,11 +3,14 @@
 Layout (little-endian)::
 
     "FDFACE" | version (1 byte) | 0 | JSON length (u32) | JSON | vertices <f4 (n, 3)
-    | uv <f4 (n, 2) | faces <u2 (m, 3) | texture (JPEG or PNG, may be empty)
+    | uv <f4 (n, 2) | faces <u2 (m, 3) | motion basis | texture (JPEG or PNG, may be empty)
 
-The JSON holds the counts (``vertices``, ``faces``, ``texture`` bytes) and the
+The JSON holds the counts (``vertices``, ``faces``, ``texture`` bytes, and
+``motion``: [moved vertices k, patterns c, what they are over], absent without a basis) and the
 feature points, regions and loops (``meta``, as samples/base_face/feature_points.json),
-so a file is complete on its own and the Deformer takes it unchanged. The face
+so a file is complete on its own and the Deformer takes it unchanged. The
+motion basis (version 2; codec/motion_basis.py) is the moved vertices' indices
+<u2 (k) then the patterns <f4 (c, k, 3); version 1 files have none. The face
 id is the sha256 of the whole file (``sha256sum face.fdface`` prints it): what
 the stream header names is exactly what the receiver holds, bit for bit.
 
@@ -34,9 +37,11 @@ from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
 from codec.errors import InputError
 from codec.face_model import N_LANDMARKS, BaseFace, build_face, load_base_face, normalise
+from codec.motion_basis import MAX_COMPONENTS, OVER, MotionBasis
 
 MAGIC = b"FDFACE"
-VERSION = 1
+VERSION = 2
+READS = (1, 2)
 MAX_FILE = 16 << 20  # the stream header's limit for an in-band model
 MAX_FACES = 4096
 MAX_TEXTURE_SIDE = 2048
@@ -64,18 +69,24 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90)
         texture = buf.tobytes()
     info = {"vertices": len(face.vertices), "faces": len(face.faces), "texture": len(texture),
             "meta": face.meta}
+    motion = b""
+    if face.motion is not None:
+        info["motion"] = [len(face.motion.vertices), face.motion.components, face.motion.over]
+        motion = (np.ascontiguousarray(face.motion.vertices, dtype="<u2").tobytes()
+                  + np.ascontiguousarray(face.motion.vectors, dtype="<f4").tobytes())
     text = json.dumps(info, sort_keys=True, separators=(",", ":")).encode()
     return b"".join([
         _PREFIX.pack(MAGIC, VERSION, 0, len(text)), text,
         np.ascontiguousarray(face.vertices, dtype="<f4").tobytes(),
         np.ascontiguousarray(face.uv, dtype="<f4").tobytes(),
-        np.ascontiguousarray(face.faces, dtype="<u2").tobytes(), texture])
+        np.ascontiguousarray(face.faces, dtype="<u2").tobytes(), motion, texture])
 
 
 def personal_face(neutral: np.ndarray, texture: np.ndarray | None = None,
-                  base: BaseFace | None = None) -> bytes:
+                  base: BaseFace | None = None, motion: MotionBasis | None = None) -> bytes:
     """A face file from a person's (468, 3) pose-free neutral landmarks (base-face axes, e.g.
-    ``sender.pose`` output) and an optional (h, w, 3) uint8 RGB texture in ``base``'s UV layout.
+    ``sender.pose`` output), an optional (h, w, 3) uint8 RGB texture in ``base``'s UV layout
+    and an optional motion basis.
 
     The landmarks become the vertices, normalised as the base face is (face
     height 1, bounding box centred), so the receiver's framing fits; topology,
@@ -87,7 +98,7 @@ def personal_face(neutral: np.ndarray, texture: np.ndarray | None = None,
         raise InputError(f"a face needs ({N_LANDMARKS}, 3) finite landmarks, got {neutral.shape}")
     if texture is not None and (texture.ndim != 3 or texture.shape[2] != 3 or texture.dtype != np.uint8):
         raise InputError(f"a face texture must be (h, w, 3) uint8, got {texture.dtype} {texture.shape}")
-    person = build_face(normalise(neutral), base.faces, base.uv, base.meta, "", texture)
+    person = build_face(normalise(neutral), base.faces, base.uv, base.meta, "", texture, motion=motion)
     return encode_face(person)
 
 
@@ -102,17 +113,22 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
     if len(data) < _PREFIX.size or data[:6] != MAGIC:
         raise bad("no FDFACE mark")
     _, version, _, n_text = _PREFIX.unpack_from(data)
-    if version != VERSION:
-        raise bad(f"version {version}, this program reads {VERSION}")
+    if version not in READS:
+        raise bad(f"version {version}, this program reads {READS[0]}-{READS[-1]}")
     try:
         info = json.loads(data[_PREFIX.size:_PREFIX.size + n_text])
         n, m, n_tex, meta = int(info["vertices"]), int(info["faces"]), int(info["texture"]), info["meta"]
+        k, c, over = info.get("motion", (0, 0, "rest"))
+        k, c = int(k), int(c)
     except (ValueError, KeyError, TypeError):
         raise bad("unreadable description") from None
     if n != N_LANDMARKS or not 0 < m <= MAX_FACES or n_tex < 0:
         raise bad(f"{n} vertices, {m} triangles")
+    if (k, c) != (0, 0) and not (0 < k <= n and 0 < c <= MAX_COMPONENTS and over in OVER):
+        raise bad(f"motion basis of {c} patterns over {k} vertices")
     pos = _PREFIX.size + n_text
-    if len(data) != pos + 20 * n + 6 * m + n_tex:
+    n_motion = 2 * k + 12 * c * k
+    if len(data) != pos + 20 * n + 6 * m + n_motion + n_tex:
         raise bad("its length does not match its description")
     vertices = np.frombuffer(data, "<f4", 3 * n, pos).reshape(n, 3).astype(np.float64)
     uv = np.frombuffer(data, "<f4", 2 * n, pos + 12 * n).reshape(n, 2).astype(np.float64)
@@ -120,8 +136,17 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
     if not (np.all(np.isfinite(vertices)) and np.all(np.abs(vertices) < 10) and np.all(np.isfinite(uv))
             and faces.max() < n):
         raise bad("vertex, texture coordinate or triangle out of range")
+    motion = _decode_motion(data, pos + 20 * n + 6 * m, k, c, over, bad) if k else None
     texture = _decode_texture(data[len(data) - n_tex:], bad) if n_tex else None
-    return build_face(vertices, faces, uv, meta, face_id(data), texture, origin)
+    return build_face(vertices, faces, uv, meta, face_id(data), texture, origin, motion)
+
+
+def _decode_motion(data: bytes, pos: int, k: int, c: int, over: str, bad) -> MotionBasis:
+    vertices = np.frombuffer(data, "<u2", k, pos).astype(np.int64)
+    vectors = np.frombuffer(data, "<f4", 3 * c * k, pos + 2 * k).reshape(c, k, 3).astype(np.float64)
+    if vertices.max() >= N_LANDMARKS or len(set(vertices.tolist())) != k or not np.all(np.abs(vectors) <= 10):
+        raise bad("motion basis out of range")
+    return MotionBasis(vertices, vectors, over)
 
 
 def _decode_texture(data: bytes, bad) -> np.ndarray:

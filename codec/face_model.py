@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from codec.errors import InputError
+from codec.motion_basis import MotionBasis
 
 DEFAULT_DIR = Path(__file__).resolve().parents[1] / "samples" / "base_face"
 MESH_FILE = "canonical_face.pbtxt"
@@ -42,7 +43,8 @@ class BaseFace:
     opening and the eyes; content_id is the sha256 hex that names the model in
     the stream header; meta is the parsed feature_points.json (regions, O);
     texture (h, w, 3) uint8 RGB or None: a person's own skin (codec/face_file.py),
-    None for the generic face, which the renderer shades in a plain material.
+    None for the generic face, which the renderer shades in a plain material;
+    motion: the person's own motion basis (codec/motion_basis.py) or None.
     """
 
     vertices: np.ndarray
@@ -54,6 +56,7 @@ class BaseFace:
     content_id: str
     meta: dict
     texture: np.ndarray | None = None
+    motion: MotionBasis | None = None
 
 
 def content_id(vertices: np.ndarray, faces: np.ndarray, meta: dict) -> str:
@@ -119,7 +122,8 @@ def load_base_face(path: str | Path | None = None) -> BaseFace:
 
 
 def build_face(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, meta: dict, face_id: str,
-               texture: np.ndarray | None = None, origin: str = "face model") -> BaseFace:
+               texture: np.ndarray | None = None, origin: str = "face model",
+               motion: MotionBasis | None = None) -> BaseFace:
     """A BaseFace from its parts, the masks derived from ``meta``'s loops; InputError naming
     ``origin`` if the feature points are not F1..F15 landmark indices."""
     try:
@@ -142,4 +146,5 @@ def build_face(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, meta: di
         content_id=face_id,
         meta=meta,
         texture=texture,
+        motion=motion,
     )

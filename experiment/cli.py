@@ -24,15 +24,17 @@ def parse_args(argv=None) -> argparse.Namespace:
         "Bitrate against quality: each clip is cropped to the face, then coded by this codec over a "
         "ladder of quality levels and parameter sets, and by x264, x265 and SVT-AV1 over a ladder of "
         "bitrates; every decoded video is measured with the same tracker (AKD, mouth AKD, mouth-opening "
-        "correlation) and in pixels inside the face (PSNR, SSIM)."))
+        "correlation, mouth-and-jaw motion error) and in pixels inside the face (PSNR, SSIM)."))
     p.add_argument("clips", nargs="+", type=Path, help="video files of talking faces")
     p.add_argument("--out", type=Path, default=Path("results"), help="output folder (default results/)")
     p.add_argument("--sizes", type=int, nargs="+", default=[256], choices=(128, 256, 512),
                    help="face-crop sizes (default 256)")
     p.add_argument("--qualities", type=int, nargs="+", default=[1, 2, 3, 4, 5], choices=range(1, 6),
                    metavar="Q", help="our quality levels (default 1 2 3 4 5)")
-    p.add_argument("--layouts", nargs="+", default=["paper", "full"], choices=("paper", "full"),
-                   help="our parameter sets (default paper full)")
+    p.add_argument("--layouts", nargs="+", default=["paper", "full", "personal"],
+                   choices=("paper", "full", "mouth", "personal"),
+                   help="our parameter sets (default paper full personal); personal runs with the own face "
+                        "only, its motion basis learned from the first half of the clip")
     p.add_argument("--faces", nargs="+", default=["generic", "own"], choices=("generic", "own"),
                    help="our receiver's face: the generic shaded one, and/or the speaker's own model made "
                         "by fd-enroll from the clip (default both)")
@@ -67,7 +69,8 @@ def _run(args) -> int:
             say(f"fd-experiment: {clip.name} at {size}x{size}: {len(clip.frames)} frames at {clip.fps:g} fps")
             prepared.append({"name": clip.name, "path": str(clip.path), "fps": clip.fps})
     tasks = [{**c, "kind": "ours", "layout": layout, "quality": q, "own": face == "own", "work": str(work)}
-             for c in prepared for face in args.faces for layout in args.layouts for q in args.qualities]
+             for c in prepared for face in args.faces for layout in args.layouts for q in args.qualities
+             if face == "own" or layout != "personal"]
     tasks += [{**c, "kind": codec, "bps": int(kbps * 1000)}
               for c in prepared for codec in args.baselines for kbps in args.bitrates]
     rows = []

@@ -2,8 +2,11 @@
 
 Keypoint measures run our tracker on both videos: the average keypoint distance
 (AKD) of talking-head codec papers, over the inter-ocular distance so that it
-does not depend on resolution, for the whole face and for the mouth alone, and
-the correlation of the mouth opening over time. Pixel measures (PSNR, SSIM)
+does not depend on resolution, for the whole face and for the mouth alone, the
+correlation of the mouth opening over time, and the motion fidelity of the
+mouth and jaw (sender/fidelity.py's measure, taken on the decoded video: how
+far each video's pose-free motion about its own rest frame is from the
+original's, over the original's motion). Pixel measures (PSNR, SSIM)
 are taken inside the face, where the codecs differ; the background is not
 what a face codec is for.
 """
@@ -11,7 +14,10 @@ what a face codec is for.
 import cv2
 import numpy as np
 
+from codec.face_model import load_base_face
 from sender.calibrate import inter_ocular, lip_gap
+from sender.fidelity import MOUTH_JAW_LANDMARKS
+from sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
 
 #: Lip landmarks of the tracker (outer and inner contours).
 MOUTH = (0, 13, 14, 17, 37, 39, 40, 61, 78, 80, 81, 82, 84, 87, 88, 91, 95, 146, 178, 181, 185, 191,
@@ -51,6 +57,39 @@ def opening_correlation(reference: np.ndarray, decoded: np.ndarray) -> float:
     if both.sum() < 3 or a[both].std() == 0 or b[both].std() == 0:
         return float("nan")
     return float(np.corrcoef(a[both], b[both])[0, 1])
+
+
+def pose_free(landmarks: np.ndarray) -> np.ndarray:
+    """(t, 468, 3) tracker landmarks (pixels; NaN rows without a face) -> the same in base-face units
+    with the head pose removed, as the sender sees them."""
+    stable = list(STABLE_LANDMARKS)
+    reference = load_base_face().vertices[stable]
+    out = np.full(np.shape(landmarks), np.nan)
+    for i, lm in enumerate(np.asarray(landmarks, dtype=np.float64)):
+        if not np.isnan(lm).any():
+            points = image_to_face_axes(lm)
+            out[i] = fit_pose(points[stable], reference).apply(points)
+    return out
+
+
+def motion_fidelity(reference: np.ndarray, decoded: np.ndarray, fps: float) -> float:
+    """Relative error of the decoded mouth-and-jaw motion: rms over the 41 landmarks of
+    sender.fidelity and the frames with a face in both of (decoded - its rest) - (reference - its
+    rest), over the rms of (reference - its rest); 0 perfect, 1 a frozen face. The rest frame is the
+    reference's frame of the first second with the mouth most closed (as the sender picks it), both
+    tracks (t, 468, 3) in pixels."""
+    ref, dec = pose_free(reference), pose_free(decoded)
+    both = ~(np.isnan(ref).any(axis=(1, 2)) | np.isnan(dec).any(axis=(1, 2)))
+    first = np.flatnonzero(both[:max(1, round(fps))])
+    if len(first) == 0 or both.sum() < 2:
+        return float("nan")
+    rest = first[np.argmin(lip_gap(np.asarray(reference)[first]))]
+    idx = list(MOUTH_JAW_LANDMARKS)
+    ref_motion = ref[both][:, idx] - ref[rest, idx]
+    dec_motion = dec[both][:, idx] - dec[rest, idx]
+    rms = lambda d: float(np.sqrt(np.mean(np.sum(d * d, axis=-1))))  # noqa: E731
+    frozen = rms(ref_motion)
+    return rms(dec_motion - ref_motion) / frozen if frozen > 0 else float("nan")
 
 
 def face_mask(landmarks: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

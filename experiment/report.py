@@ -11,6 +11,7 @@ PLOTTED = {
     "akd_aligned": ("AKD after alignment (÷ inter-ocular distance)", False),
     "mouth_akd_aligned": ("mouth AKD after alignment (÷ inter-ocular distance)", False),
     "opening_corr": ("mouth-opening correlation", True),
+    "motion_fidelity": ("mouth and jaw motion error (÷ motion; 0 perfect, 1 frozen)", False),
     "psnr_face": ("PSNR in the face (dB)", True),
     "ssim_face": ("SSIM in the face", True),
 }

@@ -12,10 +12,12 @@ from pathlib import Path
 import numpy as np
 
 from codec.errors import FdError
+from codec.motion_basis import MAX_COMPONENTS
 from experiment import metrics
 from experiment.baselines import encode_decode
 from experiment.clips import Clip, read_y4m, track
 from protocol.framing import packet_size
+from sender.motion import FRAMES_PER_PATTERN
 
 
 def measure(clip: Clip, decoded: list) -> dict:
@@ -32,16 +34,22 @@ def measure(clip: Clip, decoded: list) -> dict:
         "akd_aligned": metrics.akd(ref, dec_aligned),
         "mouth_akd_aligned": metrics.akd(ref, dec_aligned, metrics.MOUTH),
         "opening_corr": metrics.opening_correlation(ref, dec),
+        "motion_fidelity": metrics.motion_fidelity(ref, dec, clip.fps),
         "psnr_face": metrics.psnr(clip.frames, decoded, masks),
         "ssim_face": metrics.ssim(clip.frames, decoded, masks),
     }
 
 
 def enroll(clip: Clip, work: Path) -> Path:
-    """The speaker's own face model, made by fd-enroll from the clip itself (once per clip and size)."""
+    """The speaker's own face model, made by fd-enroll from the clip itself (once per clip and size);
+    its motion basis learns from the first half of the clip only, with as many patterns as it has
+    frames for."""
     path = Path(work) / f"{clip.name}_{clip.frames[0].shape[0]}.fdface"
     if not path.exists():
-        _tool("sender.enroll", str(clip.path), "-o", str(path), "-q")
+        half = len(clip.frames) // 2
+        patterns = min(MAX_COMPONENTS, half // FRAMES_PER_PATTERN)
+        _tool("sender.enroll", str(clip.path), "-o", str(path), "-q", "--motion", str(patterns),
+              "--motion-seconds", f"{half / clip.fps:.3f}")
     return path
 
 

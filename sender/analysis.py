@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from codec.deform import HEAD_DEPTH, PAPER_PARAMS, POSE_PARAMS, Deformer
-from codec.errors import NoFaceError
+from codec.errors import InputError, NoFaceError
 from codec.face_model import BaseFace
 from codec.mouth import MOUTH_PARAMS
 from codec.upper_face import UPPER_PARAMS
@@ -29,6 +29,21 @@ LAYOUTS = {
     "full": PAPER_PARAMS + UPPER_PARAMS + POSE_PARAMS,
     "mouth": PAPER_PARAMS + MOUTH_PARAMS + POSE_PARAMS[:3],
 }
+#: Layouts by name: the fixed ones, and "personal": the coefficients of the face model's own
+#: motion basis (their names depend on the face), after the paper's 13 when the basis refines
+#: them, and head rotation.
+LAYOUT_NAMES = (*LAYOUTS, "personal")
+
+
+def layout_names(layout: str, face: BaseFace) -> tuple[str, ...]:
+    """The parameter names of ``layout`` for ``face``; InputError if the face cannot carry it."""
+    if layout != "personal":
+        return LAYOUTS[layout]
+    if face.motion is None:
+        raise InputError("--params personal needs a face model with a motion basis: "
+                         "fd-enroll CLIP -o me.fdface, then fd-send --face me.fdface")
+    paper = PAPER_PARAMS if face.motion.over == "paper" else ()
+    return paper + face.motion.names + POSE_PARAMS[:3]
 #: How far the receiver's camera is from the face (base-face units), to turn scale changes into depth.
 VIEW_DISTANCE = 3.9
 
@@ -67,8 +82,9 @@ class FaceAnalyser:
     """Runs a tracker and the model fit over frames; yields one :class:`FrameAnalysis` per frame.
 
     layout: "paper" (the paper's 13 and head rotation), "full" (plus brows,
-    lids, cheeks and head translation) or "mouth" (the paper's 13, the richer
-    mouth and jaw of codec/mouth.py, head rotation); calibration_frames: how many frames with
+    lids, cheeks and head translation), "mouth" (the paper's 13, the richer
+    mouth and jaw of codec/mouth.py, head rotation) or "personal" (the paper's
+    13 when the face's own motion basis refines them, the basis, head rotation); calibration_frames: how many frames with
     a face to choose the rest face from; neutral: a frame index to use instead.
     """
 
@@ -84,8 +100,10 @@ class FaceAnalyser:
         self._pivot = 0.5 * (self._base.min(axis=0) + self._base.max(axis=0)) - [0.0, 0.0, HEAD_DEPTH]
         self._calibration_frames = max(1, calibration_frames)
         self._neutral = neutral
-        self.names = LAYOUTS[layout]
+        self.names = layout_names(layout, face)
         self._upper = layout == "full"
+        self._personal = layout == "personal"
+        self._paper = self.names[:len(PAPER_PARAMS)] == PAPER_PARAMS
         self._translate = "tx" in self.names
         self.rest: RestFace | None = None
         self._rest_pose: Pose | None = None
@@ -165,9 +183,12 @@ class FaceAnalyser:
         if self._landmark_filter is not None:
             target = self._landmark_filter(target)
             head = self._pose_filter(head)
-        parts = [self.fit.paper(target)]
+        paper = self.fit.paper(target) if self._paper else np.zeros(len(PAPER_PARAMS))
+        parts = [paper] if self._paper else []
         if self._upper:
             parts.append(self.fit.upper(target))
+        if self._personal:
+            parts.append(self.fit.motion(target, paper))
         params = np.concatenate(parts + [head])
         if self._param_filter is not None:
             params = self._param_filter(params)

@@ -30,10 +30,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("-o", "--output", default="-", metavar="DEST",
                    help="a file, - for stdout (default), tcp://HOST:PORT (connect and write the stream) "
                         "or udp://HOST:PORT (one packet per datagram)")
-    p.add_argument("--params", choices=("paper", "full", "mouth"), default="paper",
+    p.add_argument("--params", choices=("paper", "full", "mouth", "personal"), default="paper",
                    help="paper: the paper's 13 parameters and head rotation (default); "
                         "full: plus brows, lids, cheeks and head translation; "
-                        "mouth: the paper's plus six more lip points and jaw translation")
+                        "mouth: the paper's plus six more lip points and jaw translation; "
+                        "personal: the paper's plus the coefficients of the person's own motion basis "
+                        "(needs --face from fd-enroll of a clip of them talking)")
     p.add_argument("--face", metavar="FILE.fdface",
                    help="the person's face model from fd-enroll: fitted here and carried once at the start "
                         "of the stream (its bytes are counted apart from the per-frame rate); default: the "

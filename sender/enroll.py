@@ -1,8 +1,10 @@
-"""fd-enroll: a person's face model from a neutral frame of a video, as one file to share before a call.
+"""fd-enroll: a person's face model from a video of them, as one file to share before a call.
 
-The mesh is the person's own landmarks with the head pose removed, the
-texture their skin warped into the mesh's UV layout; the receiver then draws
-them instead of the generic face (``fd-recv --face FILE``).
+The mesh is the person's own landmarks in a neutral frame with the head pose
+removed, the texture their skin warped into the mesh's UV layout; the receiver
+then draws them instead of the generic face (``fd-recv --face FILE``). When the
+clip shows them talking, the file also carries their own motion basis
+(sender/motion.py), which ``fd-send --params personal`` sends coefficients of.
 """
 
 import argparse
@@ -12,16 +14,20 @@ import cv2
 import numpy as np
 
 from codec.cli import ArgumentParser, run_main
+from codec.motion_basis import MAX_COMPONENTS
+from sender.motion import FRAMES_PER_PATTERN
 
 EPILOG = """examples:
   fd-enroll me.mp4 -o me.fdface
   fd-enroll me.mp4 --frame 12 -o me.fdface
   fd-send talk.mp4 --face me.fdface | fd-recv --face me.fdface -o out.mp4
+  fd-send talk.mp4 --face me.fdface --params personal | fd-recv -o out.mp4
 """
 TEXTURE_SIZE = 256  # texels a side: about 20 KB as JPEG, detail for a 512-pixel rendering
 #: A frame's distance from neutral: lip gap (over eye distance) in units of GAP_UNIT plus head
 #: turn in units of ANGLE_UNIT, so a 0.05 gap (lips visibly parted) weighs as 10 degrees of turn.
 GAP_UNIT, ANGLE_UNIT = 0.05, 10.0
+MOTION_PATTERNS = 8  # the most the format holds: on the dev clips each pattern up to 8 still pays its bits
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -41,6 +47,16 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="how much of the clip --auto chooses from, counted from the first face (default 2)")
     p.add_argument("--texture-size", type=int, default=TEXTURE_SIZE, metavar="PX",
                    help=f"texture width and height in texels, 64-1024 (default {TEXTURE_SIZE})")
+    p.add_argument("--motion", type=int, default=MOTION_PATTERNS, metavar="N",
+                   help=f"patterns in the person's motion basis, learned from the whole clip, 0-{MAX_COMPONENTS} "
+                        f"(default {MOTION_PATTERNS}; 0: none); needs about {FRAMES_PER_PATTERN} frames of talking "
+                        "per pattern")
+    p.add_argument("--motion-over", choices=("rest", "paper"), default="rest",
+                   help="rest: the patterns span the whole mouth and jaw motion and replace the paper's "
+                        "parameters in --params personal (default: fewest bits for the fidelity); paper: "
+                        "they span what the paper's 13 parameters leave over and are sent after them")
+    p.add_argument("--motion-seconds", type=float, default=60.0, metavar="S",
+                   help="how much of the clip the motion basis learns from (default 60)")
     p.add_argument("--key", metavar="FILE",
                    help="encrypt the face model at rest with this key (fd-keygen); fd-send and fd-recv open it "
                         "with the same --key")
@@ -52,6 +68,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error("--seconds must be positive")
     if not 64 <= args.texture_size <= 1024:
         p.error("--texture-size must be 64 to 1024")
+    if not 0 <= args.motion <= MAX_COMPONENTS:
+        p.error(f"--motion must be 0 to {MAX_COMPONENTS}")
+    if args.motion_seconds <= 0:
+        p.error("--motion-seconds must be positive")
     return args
 
 
@@ -61,7 +81,7 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    from codec.face_file import personal_face, save_face_file
+    from codec.face_file import decode_face, personal_face, save_face_file
     from codec.face_model import load_base_face
     from codec.texture import texture_from_frame
     from sender.keygen import read_key
@@ -74,13 +94,44 @@ def _run(args) -> int:
     rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
     texture = texture_from_frame(rgb, landmarks[:, :2], base.uv, base.faces, args.texture_size)
     data = personal_face(aligned, texture, base)
+    motion, note = None, ""
+    if args.motion:
+        motion, frames = _motion(args, decode_face(data), index)
+        note = (f", motion basis of {args.motion} patterns over the {args.motion_over} from {frames} frames"
+                if motion is not None else
+                f", no motion basis ({frames} frames with a face; {args.motion} patterns need "
+                f"{FRAMES_PER_PATTERN * args.motion})")
+        data = personal_face(aligned, texture, base, motion) if motion is not None else data
     ident = save_face_file(data, args.output, key)
     print(ident)
     if not args.quiet:
         print(f"fd-enroll: face model {ident[:12]} from frame {index} (lip gap {score[0]:.3f}, head turned "
-              f"{score[1]:.1f} degrees), {len(data)} bytes in {args.output}"
+              f"{score[1]:.1f} degrees){note}, {len(data)} bytes in {args.output}"
               f"{' (encrypted)' if key else ''}", file=sys.stderr)
     return 0
+
+
+def _motion(args, face, neutral: int):
+    """(the person's MotionBasis or None, frames with a face it was learned from)."""
+    from itertools import islice
+
+    from codec.progress import progress_for
+    from sender.motion import learn_motion, residuals
+    from sender.sources import open_source
+    from sender.tracker import FaceTracker
+
+    source = open_source(args.input)
+    limit = max(neutral + 1, round(args.motion_seconds * source.fps))
+    total = min(limit, source.length or limit)
+    progress = progress_for("fd-enroll", args.quiet)
+    update = (lambda n: progress.update(n, total, "learning the motion basis")) if progress else None
+    try:
+        residual, vertices = residuals(islice(source.frames(), limit), FaceTracker(), face, source.fps,
+                                       args.motion_over, neutral, update)
+    finally:
+        if progress:
+            progress.close()
+    return learn_motion(residual, vertices, args.motion, args.motion_over), len(residual)
 
 
 def _neutral_frame(source, base, wanted: int | None, seconds: float):

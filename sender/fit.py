@@ -8,7 +8,10 @@ points. The model is linear where it can be:
   so every lower-face vertex is c0 + sin(theta) c1 + (1 - cos(theta)) c2 + B v,
   with v the 12 sent vector components and c1, c2, B fixed by the region map;
 - the upper face (brows, lids, cheeks) and the richer mouth (codec/mouth.py)
-  are fixed linear bases; the mouth's is fitted jointly with the paper's vectors.
+  are fixed linear bases; the mouth's is fitted jointly with the paper's vectors;
+- a person's own motion basis (codec/motion_basis.py) was learned from what the
+  paper's fit leaves over, or from the whole motion, so it is fitted the same
+  way: to the residual of the paper's fit, or of the rest face (paper parameters 0).
 
 For a fixed theta the best v is a ridge least-squares solve; eliminating v
 leaves a quadratic form in (sin, 1 - cos), so theta is a 1-D minimisation of a
@@ -87,6 +90,12 @@ class ModelFit:
         self._upper_basis = bu
         self._base = base
 
+        self._deformer = deformer
+        motion = deformer.face.motion
+        if motion is not None:
+            self._motion_vertices = motion.vertices
+            self._motion_solve = _ridge_solver(motion.vectors.transpose(1, 2, 0).reshape(-1, motion.components), ridge)
+
     def paper(self, target: np.ndarray) -> np.ndarray:
         """(468, 3) target -> (13,) parameters in PAPER_PARAMS order (theta in degrees),
         followed with ``mouth`` by the (len(MOUTH_PARAMS),) mouth parameters."""
@@ -112,6 +121,13 @@ class ModelFit:
         """(468, 3) target -> (len(UPPER_PARAMS),) brow, lid and cheek parameters."""
         d = np.asarray(target, dtype=np.float64)[self.upper_landmarks] - self._base[self.upper_landmarks]
         return self._upper_solve @ d.ravel()
+
+    def motion(self, target: np.ndarray, paper: np.ndarray) -> np.ndarray:
+        """(468, 3) target and its (13,) paper fit (zeros for a basis over the rest face) -> the face's
+        motion-basis coefficients (c,)."""
+        v = self._motion_vertices
+        left = np.asarray(target, dtype=np.float64)[v] - self._deformer.deform(paper[:13])[v]
+        return self._motion_solve @ left.ravel()
 
     def lower_mesh(self, params: np.ndarray) -> np.ndarray:
         """(k, 3) model positions of ``lower`` for the parameters :meth:`paper` returns."""

@@ -17,7 +17,7 @@ class SendSession:
     """Opens the source and the models; :meth:`packets` yields the packets as frames are analysed.
 
     source: a path (video file, image directory or %d pattern) or an opened
-    source (``sender.sources``); layout: "paper" or "full" (``analysis.LAYOUTS``);
+    source (``sender.sources``); layout: one of ``analysis.LAYOUT_NAMES``;
     neutral: the rest frame's index (default: chosen in the first second);
     smoothing: One Euro strength (0: off); face_file: a personal face model (fd-enroll) to fit
     and render instead of the generic face, carried in the stream when ``embed_face``; key: a

@@ -201,10 +201,10 @@ def test_face_by_id_without_a_face_is_refused():
 
 
 def test_every_layout_is_offered_by_the_cli():
-    from sender.analysis import LAYOUTS
+    from sender.analysis import LAYOUT_NAMES
     from sender.cli import parse_args
 
-    for layout in LAYOUTS:
+    for layout in LAYOUT_NAMES:
         assert parse_args(["clip.mp4", "--params", layout]).params == layout
 
 

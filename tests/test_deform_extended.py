@@ -12,6 +12,7 @@ from numpy.testing import assert_allclose
 
 from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
 from codec.face_model import load_base_face
+from codec.motion_basis import BASIS_PARAMS
 from codec.mouth import MOUTH_PARAMS
 from codec.regions import project_weights
 from codec.upper_face import UPPER_PARAMS, gaze_direction
@@ -41,8 +42,9 @@ def params(**named) -> np.ndarray:
 
 
 def test_layout():
-    assert EXTENDED_PARAMS[:13] == PAPER_PARAMS and len(set(EXTENDED_PARAMS)) == N == 29 + len(MOUTH_PARAMS)
-    assert EXTENDED_PARAMS[29:] == MOUTH_PARAMS  # appended: older layouts keep their slots
+    assert EXTENDED_PARAMS[:13] == PAPER_PARAMS
+    assert len(set(EXTENDED_PARAMS)) == N == 29 + len(MOUTH_PARAMS) + len(BASIS_PARAMS)
+    assert EXTENDED_PARAMS[29:] == MOUTH_PARAMS + BASIS_PARAMS  # appended: older layouts keep their slots
     assert EXTENDED_PARAMS[13:29] == UPPER_PARAMS + ("gaze_yaw", "gaze_pitch", "rx", "ry", "rz", "tx", "ty", "tz")
 
 

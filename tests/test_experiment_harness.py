@@ -18,7 +18,7 @@ CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
 def results(tmp_path_factory):
     out = tmp_path_factory.mktemp("experiment")
     code = main([str(CLIP), "--out", str(out), "--seconds", "2", "--sizes", "128", "--qualities", "1", "3",
-                 "--layouts", "paper", "--faces", "generic", "own", "--baselines", "x264", "--bitrates", "40", "--jobs", "1", "-q"])
+                 "--layouts", "paper", "personal", "--faces", "generic", "own", "--baselines", "x264", "--bitrates", "40", "--jobs", "1", "-q"])
     assert code == 0
     return out, json.loads((out / "results.json").read_text())
 
@@ -27,12 +27,13 @@ def test_one_row_per_run_in_csv_and_json(results):
     out, rows = results
     assert sorted((r["codec"], r["setting"]) for r in rows) == [
         ("ours-paper", "q1"), ("ours-paper", "q3"), ("ours-paper-own", "q1"), ("ours-paper-own", "q3"),
-        ("x264", "40000bps")]
+        ("ours-personal-own", "q1"), ("ours-personal-own", "q3"), ("x264", "40000bps")]
     with open(out / "results.csv") as f:
-        assert len(list(csv.DictReader(f))) == 5
+        assert len(list(csv.DictReader(f))) == 7
     for row in rows:
         assert row["frames"] == 50 and row["size"] == 128
         assert 0.0 <= row["akd_aligned"] < 0.5 and row["faces_found"] > 0.9
+        assert 0.0 < row["motion_fidelity"] < 1.5
 
 
 def test_our_bitrate_is_the_stream_file_without_its_header(results):

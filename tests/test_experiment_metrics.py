@@ -82,3 +82,32 @@ def test_alignment_removes_a_similarity_but_not_a_change_of_shape():
     bent = moved.copy()
     bent[:, 14] += 30.0
     assert akd(ref, aligned(bent, ref), MOUTH) > 0.005  # 30 px / 1.7 on one of 40 points, over 80 px
+
+
+def face_track(t=12, scale=200.0, opening=0.03):
+    """(t, 468, 3) pixel landmarks of the base face whose jaw line and lower lip drop over time."""
+    from codec.face_model import load_base_face
+    from sender.fidelity import MOUTH_JAW_LANDMARKS
+
+    v = load_base_face().vertices
+    frames = np.repeat(v[None], t, axis=0)
+    moving = [i for i in MOUTH_JAW_LANDMARKS if v[i, 1] < v[14, 1] + 1e-9]
+    frames[:, moving, 1] -= np.linspace(0, opening, t)[:, None]
+    return frames * [scale, -scale, -scale] + [320, 240, 0]
+
+
+def test_motion_fidelity_is_zero_for_the_same_motion_whatever_the_pose_and_one_for_a_frozen_face():
+    from experiment.metrics import motion_fidelity
+    from scipy.spatial.transform import Rotation
+
+    ref = face_track()
+    assert motion_fidelity(ref, ref, 25) == pytest.approx(0, abs=1e-9)
+    moved = ref.copy()
+    for i in range(len(moved)):  # the decoded face drawn turned, smaller and elsewhere: same motion
+        rot = Rotation.from_euler("xyz", [0, 5 + i, 3], degrees=True).as_matrix()
+        moved[i] = (moved[i] - 300) @ rot.T * 0.7 + [100, 50, 0]
+    assert motion_fidelity(ref, moved, 25) < 0.05
+    frozen = np.repeat(ref[:1], len(ref), axis=0)
+    assert motion_fidelity(ref, frozen, 25) == pytest.approx(1, abs=1e-6)
+    half = face_track(opening=0.015)
+    assert motion_fidelity(ref, half, 25) == pytest.approx(0.5, abs=0.05)

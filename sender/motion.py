@@ -1,0 +1,48 @@
+"""Learning a person's motion basis from a clip of them talking (fd-enroll).
+
+The clip is analysed exactly as fd-send will analyse a call with this face
+model (same tracker, rest face, paper fit) but unsmoothed, so the residuals are
+the motion and not the filter's lag. The lower face's displacement from the
+rest face, or what the paper's 13 parameters leave over of it, becomes the
+basis (codec/motion_basis.py).
+"""
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from codec.deform import Deformer
+from codec.face_model import BaseFace
+from codec.motion_basis import MotionBasis, learn_basis
+from sender.analysis import FaceAnalyser, Smoothing
+
+#: Frames with a face needed per pattern: fewer, and the patterns fit the clip's noise.
+FRAMES_PER_PATTERN = 8
+
+
+def residuals(frames: Iterable[np.ndarray], tracker, face: BaseFace, fps: float, over: str = "rest",
+              neutral: int | None = None, on_frame=None) -> tuple[np.ndarray, np.ndarray]:
+    """((n, k, 3) displacements from the rest face, or with ``over="paper"`` residuals of the paper
+    fit, over the k lower-face landmarks the paper's model moves, (k,) their indices), for the n
+    frames with a face; ``neutral``: the rest frame's index (default: chosen as fd-send does);
+    ``on_frame(count)`` after each frame (progress)."""
+    analyser = FaceAnalyser(tracker, face, fps, "paper", calibration_frames=round(fps), neutral=neutral,
+                            smoothing=Smoothing(0.0))
+    deformer = Deformer(face)
+    lower = analyser.fit.lower
+    out = []
+    for count, result in enumerate(analyser.run(frames), 1):
+        if result.target is not None:
+            params = result.params[:13] if over == "paper" else np.zeros(13)
+            out.append(result.target[lower] - deformer.deform(params)[lower])
+        if on_frame is not None:
+            on_frame(count)
+    return (np.stack(out) if out else np.zeros((0, len(lower), 3))), lower
+
+
+def learn_motion(residual: np.ndarray, vertices: np.ndarray, components: int,
+                 over: str = "rest") -> MotionBasis | None:
+    """The basis of ``components`` patterns, or None when there are too few frames to learn it."""
+    if len(residual) < FRAMES_PER_PATTERN * components:
+        return None
+    return learn_basis(residual, vertices, components, over)

@@ -1,0 +1,160 @@
+"""The personal motion basis: learning, the face file, the deformation, the sender's fit and the CLIs."""
+
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
+from codec.errors import InputError
+from codec.face_file import decode_face, encode_face, load_face_file
+from codec.face_model import load_base_face
+from codec.motion_basis import BASIS_PARAMS, MotionBasis, learn_basis
+from sender.fit import ModelFit
+
+ROOT = Path(__file__).resolve().parents[1]
+CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
+RNG = np.random.default_rng(7)
+
+
+def planted(n=200, k=30, m=3, noise=1e-4):
+    """Residuals made of m known patterns over k vertices, plus a little noise."""
+    patterns = RNG.normal(size=(m, k, 3))
+    coeffs = RNG.normal(size=(n, m)) * [0.05, 0.03, 0.01][:m]
+    residuals = np.einsum("nm,mkd->nkd", coeffs, patterns) + noise * RNG.normal(size=(n, k, 3))
+    return residuals, np.arange(100, 100 + k), patterns
+
+
+def test_learning_recovers_the_planted_patterns_scaled_to_a_unit_vertex_move():
+    residuals, vertices, patterns = planted()
+    basis = learn_basis(residuals, vertices, 3)
+    assert basis.names == BASIS_PARAMS[:3]
+    np.testing.assert_allclose(np.linalg.norm(basis.vectors, axis=2).max(axis=1), 1.0)
+    q, _ = np.linalg.qr(basis.vectors.reshape(3, -1).T)  # the learned span holds every planted pattern
+    for p in patterns.reshape(3, -1):
+        assert np.linalg.norm(p - q @ (q.T @ p)) < 1e-2 * np.linalg.norm(p)
+    again = learn_basis(residuals.copy(), vertices, 3)
+    np.testing.assert_array_equal(again.vectors, basis.vectors)  # signs are fixed: same data, same file
+
+
+def test_learning_refuses_more_patterns_than_allowed_or_frames():
+    residuals, vertices, _ = planted(n=4)
+    with pytest.raises(InputError):
+        learn_basis(residuals, vertices, 5)
+    with pytest.raises(InputError):
+        learn_basis(planted(n=40)[0], vertices, 9)
+
+
+def _face_with_basis():
+    residuals, vertices, _ = planted()
+    return dataclasses.replace(load_base_face(), motion=learn_basis(residuals, vertices, 3))
+
+
+def test_face_file_carries_the_basis_and_old_files_still_read():
+    face = _face_with_basis()
+    data = encode_face(face)
+    back = decode_face(data)
+    assert back.motion.over == face.motion.over
+    np.testing.assert_array_equal(back.motion.vertices, face.motion.vertices)
+    np.testing.assert_allclose(back.motion.vectors, face.motion.vectors, atol=1e-6)
+    plain = encode_face(load_base_face())
+    assert decode_face(plain).motion is None
+    old = bytearray(plain)
+    old[6] = 1  # version 1 had no motion section, and these bytes have none
+    assert decode_face(bytes(old)).motion is None
+
+
+def test_a_damaged_basis_is_refused():
+    data = bytearray(encode_face(_face_with_basis()))
+    start = data.index(np.asarray([100, 101], "<u2").tobytes())
+    data[start:start + 2] = np.asarray([9999], "<u2").tobytes()
+    with pytest.raises(InputError, match="motion basis"):
+        decode_face(bytes(data))
+
+
+def test_coefficients_move_exactly_the_basis_vertices():
+    face = _face_with_basis()
+    deformer = Deformer(face)
+    params = np.zeros(len(EXTENDED_PARAMS))
+    rest = deformer.deform_extended(params)
+    params[EXTENDED_PARAMS.index("basis_1")] = 0.02
+    moved = deformer.deform_extended(params)
+    np.testing.assert_allclose(moved[face.motion.vertices] - rest[face.motion.vertices],
+                               0.02 * face.motion.vectors[1], atol=1e-12)
+    others = np.setdiff1d(np.arange(len(rest)), face.motion.vertices)
+    np.testing.assert_array_equal(moved[others], rest[others])
+    params[:] = 0
+    params[EXTENDED_PARAMS.index("basis_5")] = 0.5  # past the face's three patterns: nothing
+    np.testing.assert_array_equal(deformer.deform_extended(params), rest)
+
+
+def test_the_fit_recovers_coefficients_of_what_the_paper_model_leaves_over():
+    base = load_base_face()
+    fit = ModelFit(Deformer(base))
+    lower = fit.lower
+    shapes = []
+    for _ in range(60):  # random lower-face shapes; their paper-fit residuals teach the basis
+        t = base.vertices.copy()
+        t[lower] += 0.01 * RNG.normal(size=(len(lower), 3))
+        shapes.append(t[lower] - fit.lower_mesh(fit.paper(t)))
+    face = dataclasses.replace(base, motion=learn_basis(np.stack(shapes), lower, 4, "paper"))
+    fit = ModelFit(Deformer(face))
+    paper = np.zeros(len(PAPER_PARAMS))
+    paper[[0, 2, 11]] = [6.0, 0.01, -0.008]
+    coeffs = np.array([0.03, -0.02, 0.01, 0.005])
+    params = np.zeros(len(EXTENDED_PARAMS))
+    params[:len(PAPER_PARAMS)] = paper
+    params[[EXTENDED_PARAMS.index(n) for n in face.motion.names]] = coeffs
+    targets = Deformer(face).deform_extended(params)
+    got_paper = fit.paper(targets)
+    got = fit.motion(targets, got_paper)
+    np.testing.assert_allclose(got, coeffs, atol=0.1 * np.abs(coeffs).max())
+    assert abs(got_paper[0] - paper[0]) < 0.5
+
+
+def _run(cmd):
+    return subprocess.run([sys.executable, "-m", *cmd], capture_output=True, cwd=ROOT, timeout=300)
+
+
+@pytest.mark.parametrize("over", ["rest", "paper"])
+def test_enrol_then_send_the_personal_layout_end_to_end(tmp_path, over):
+    face = tmp_path / "me.fdface"
+    enrolled = _run(["sender.enroll", str(CLIP), "-o", str(face), "--motion", "4", "--motion-over", over])
+    assert enrolled.returncode == 0, enrolled.stderr.decode()
+    assert f"motion basis of 4 patterns over the {over}" in enrolled.stderr.decode()
+    model = load_face_file(face)
+    assert (model.motion.components, model.motion.over) == (4, over)
+    stream = tmp_path / "s.fd"
+    sent = _run(["sender.cli", str(CLIP), "--face", str(face), "--params", "personal", "-o", str(stream),
+                 "--dump", str(tmp_path / "sent.npz"), "-q"])
+    assert sent.returncode == 0, sent.stderr.decode()
+    got = _run(["receiver.cli", str(stream), "-o", str(tmp_path / "out.y4m"), "--size", "64",
+                "--dump", str(tmp_path / "recv.npz"), "-q"])
+    assert got.returncode == 0, got.stderr.decode()
+    recv = np.load(tmp_path / "recv.npz")
+    paper = PAPER_PARAMS if over == "paper" else ()
+    assert tuple(recv["names"]) == paper + BASIS_PARAMS[:4] + ("rx", "ry", "rz")
+    cols = slice(len(paper), len(paper) + 4)
+    coeffs = recv["params"][:, cols]
+    assert np.abs(coeffs).max() > 0.002  # the basis is used, frame by frame
+    np.testing.assert_allclose(coeffs, np.load(tmp_path / "sent.npz")["params"][:, cols], atol=0.0011)
+
+
+def test_a_short_clip_gives_a_face_without_a_basis_and_personal_then_refuses(tmp_path):
+    face = tmp_path / "me.fdface"
+    enrolled = _run(["sender.enroll", str(CLIP), "-o", str(face), "--motion", "8", "--motion-seconds", "1"])
+    assert enrolled.returncode == 0, enrolled.stderr.decode()
+    assert "no motion basis" in enrolled.stderr.decode()
+    assert load_face_file(face).motion is None
+    sent = _run(["sender.cli", str(CLIP), "--face", str(face), "--params", "personal", "-o", "/dev/null"])
+    err = sent.stderr.decode()
+    assert sent.returncode != 0 and err.startswith("fd-send: ") and err.count("\n") == 1, err
+    assert "motion basis" in err
+
+
+def test_motion_basis_shape_is_checked():
+    with pytest.raises(InputError):
+        MotionBasis(np.arange(3), np.zeros((2, 4, 3)))
