@@ -36,18 +36,37 @@ def akd(reference: np.ndarray, decoded: np.ndarray, indices=None) -> float:
     return float((dist / inter_ocular(ref[both])).mean())
 
 
+def similarities(decoded: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(t, 2, 3) per-frame 2-D similarity (an affine matrix) that best fits the decoded keypoints
+    (t, 468, 2+) onto the reference's; identity on frames where either has no face (NaN rows)."""
+    dec = np.asarray(decoded, dtype=np.float64)[..., :2]
+    ref = np.asarray(reference, dtype=np.float64)[..., :2]
+    out = np.tile(np.eye(2, 3), (len(dec), 1, 1))
+    both = ~(np.isnan(dec).any(axis=(1, 2)) | np.isnan(ref).any(axis=(1, 2)))
+    z_dec = dec[both, :, 0] + 1j * dec[both, :, 1]
+    z_ref = ref[both, :, 0] + 1j * ref[both, :, 1]
+    mu_dec, mu_ref = z_dec.mean(axis=1), z_ref.mean(axis=1)
+    a = ((z_ref - mu_ref[:, None]) * np.conj(z_dec - mu_dec[:, None])).sum(axis=1)
+    a = a / (np.abs(z_dec - mu_dec[:, None]) ** 2).sum(axis=1)
+    shift = mu_ref - a * mu_dec
+    out[both] = np.stack([np.stack([a.real, -a.imag, shift.real], -1), np.stack([a.imag, a.real, shift.imag], -1)], 1)
+    return out
+
+
 def aligned(decoded: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """(t, 468, 2) decoded keypoints moved by the per-frame 2-D similarity that best fits them to the
     reference's: what is left is shape and motion, not where or how large the face is drawn."""
     dec = np.asarray(decoded, dtype=np.float64)[..., :2]
-    ref = np.asarray(reference, dtype=np.float64)[..., :2]
-    z_dec = dec[..., 0] + 1j * dec[..., 1]
-    z_ref = ref[..., 0] + 1j * ref[..., 1]
-    mu_dec, mu_ref = z_dec.mean(axis=1, keepdims=True), z_ref.mean(axis=1, keepdims=True)
-    a = ((z_ref - mu_ref) * np.conj(z_dec - mu_dec)).sum(axis=1, keepdims=True)
-    a = a / (np.abs(z_dec - mu_dec) ** 2).sum(axis=1, keepdims=True)
-    z = a * (z_dec - mu_dec) + mu_ref
-    return np.stack([z.real, z.imag], axis=-1)
+    m = similarities(decoded, reference)
+    return np.einsum("tij,tnj->tni", m[:, :, :2], dec) + m[:, None, :, 2]
+
+
+def aligned_frames(frames: list, decoded: np.ndarray, reference: np.ndarray) -> list:
+    """Decoded (H, W, 3) frames warped by the similarity that fits their keypoints onto the
+    reference's, so that pixel measures compare faces and not where each codec draws them (a
+    frame without a face in either stays as it is)."""
+    return [cv2.warpAffine(f, m, (f.shape[1], f.shape[0]), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            for f, m in zip(frames, similarities(decoded, reference))]
 
 
 def opening_correlation(reference: np.ndarray, decoded: np.ndarray) -> float:

@@ -14,6 +14,8 @@ PLOTTED = {
     "motion_fidelity": ("mouth and jaw motion error (÷ motion; 0 perfect, 1 frozen)", False),
     "psnr_face": ("PSNR in the face (dB)", True),
     "ssim_face": ("SSIM in the face", True),
+    "psnr_face_aligned": ("PSNR in the face after alignment (dB)", True),
+    "ssim_face_aligned": ("SSIM in the face after alignment", True),
 }
 
 

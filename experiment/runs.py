@@ -23,9 +23,8 @@ from sender.motion import FRAMES_PER_PATTERN
 def measure(clip: Clip, decoded: list) -> dict:
     """Keypoint and pixel measures of ``decoded`` frames against the clip (see experiment.metrics)."""
     ref, dec = clip.landmarks, track(decoded)
-    found = ~(np.isnan(dec).any(axis=(1, 2)) | np.isnan(ref).any(axis=(1, 2)))
-    dec_aligned = np.full(dec.shape[:2] + (2,), np.nan)
-    dec_aligned[found] = metrics.aligned(dec[found], ref[found])
+    dec_aligned = metrics.aligned(dec, ref)  # NaN where either has no face, as the tracks are
+    warped = metrics.aligned_frames(decoded, dec, ref)
     masks = [metrics.face_mask(lm, clip.frames[0].shape[:2]) if not np.isnan(lm).any()
              else np.zeros(clip.frames[0].shape[:2], bool) for lm in ref]
     return {
@@ -37,6 +36,8 @@ def measure(clip: Clip, decoded: list) -> dict:
         "motion_fidelity": metrics.motion_fidelity(ref, dec, clip.fps),
         "psnr_face": metrics.psnr(clip.frames, decoded, masks),
         "ssim_face": metrics.ssim(clip.frames, decoded, masks),
+        "psnr_face_aligned": metrics.psnr(clip.frames, warped, masks),
+        "ssim_face_aligned": metrics.ssim(clip.frames, warped, masks),
     }
 
 

@@ -111,3 +111,21 @@ def test_motion_fidelity_is_zero_for_the_same_motion_whatever_the_pose_and_one_f
     assert motion_fidelity(ref, frozen, 25) == pytest.approx(1, abs=1e-6)
     half = face_track(opening=0.015)
     assert motion_fidelity(ref, half, 25) == pytest.approx(0.5, abs=0.05)
+
+
+def test_frames_are_warped_onto_the_reference_by_their_keypoints():
+    from experiment.metrics import aligned_frames, similarities
+
+    ref = track(t=2)
+    dec = ref * 0.5 + [20, 10]  # drawn at half size, elsewhere
+    dec[1] = np.nan  # no face found in the second decoded frame: left as it is
+    m = similarities(dec, ref)
+    np.testing.assert_allclose(m[0], [[2, 0, -40], [0, 2, -20]], atol=1e-9)
+    np.testing.assert_array_equal(m[1], np.eye(2, 3))
+    image = np.zeros((400, 400, 3), np.uint8)
+    image[60:70, 80:90] = 255  # a bright square at (80..90, 60..70) in the decoded frame
+    warped = aligned_frames([image, image], dec, ref)
+    ys, xs = np.nonzero(warped[0][..., 0] > 128)
+    assert (xs.min(), ys.min()) == pytest.approx((120, 100), abs=1)  # 2 x (80, 60) - (40, 20)
+    assert xs.max() - xs.min() == pytest.approx(19, abs=1)  # 10 pixels drawn twice as large
+    np.testing.assert_array_equal(warped[1], image)
