@@ -22,7 +22,7 @@ import numpy as np
 
 from codec.errors import InputError
 
-MAX_COMPONENTS = 8
+MAX_COMPONENTS = 16
 OVER = ("rest", "paper")  # what the patterns are displacements from
 BASIS_PARAMS: tuple[str, ...] = tuple(f"basis_{i}" for i in range(MAX_COMPONENTS))
 

@@ -17,7 +17,6 @@ from experiment import metrics
 from experiment.baselines import encode_decode
 from experiment.clips import Clip, read_y4m, track
 from protocol.framing import packet_size
-from sender.motion import FRAMES_PER_PATTERN
 
 
 def measure(clip: Clip, decoded: list) -> dict:
@@ -48,8 +47,7 @@ def enroll(clip: Clip, work: Path) -> Path:
     path = Path(work) / f"{clip.name}_{clip.frames[0].shape[0]}.fdface"
     if not path.exists():
         half = len(clip.frames) // 2
-        patterns = min(MAX_COMPONENTS, half // FRAMES_PER_PATTERN)
-        _tool("sender.enroll", str(clip.path), "-o", str(path), "-q", "--motion", str(patterns),
+        _tool("sender.enroll", str(clip.path), "-o", str(path), "-q", "--motion", str(MAX_COMPONENTS),
               "--motion-seconds", f"{half / clip.fps:.3f}")
     return path
 

@@ -42,7 +42,10 @@ def residuals(frames: Iterable[np.ndarray], tracker, face: BaseFace, fps: float,
 
 def learn_motion(residual: np.ndarray, vertices: np.ndarray, components: int,
                  over: str = "rest") -> MotionBasis | None:
-    """The basis of ``components`` patterns, or None when there are too few frames to learn it."""
-    if len(residual) < FRAMES_PER_PATTERN * components:
+    """The basis of ``components`` patterns, or of as many as the frames allow (FRAMES_PER_PATTERN
+    each), or None when they allow none: on the dev clips every pattern up to the limit pays its
+    bits, so a short clip gets fewer patterns rather than none."""
+    components = min(components, len(residual) // FRAMES_PER_PATTERN)
+    if components < 1:
         return None
     return learn_basis(residual, vertices, components, over)

@@ -12,8 +12,9 @@ from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
 from codec.errors import InputError
 from codec.face_file import decode_face, encode_face, load_face_file
 from codec.face_model import load_base_face
-from codec.motion_basis import BASIS_PARAMS, MotionBasis, learn_basis
+from codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS, MotionBasis, learn_basis
 from sender.fit import ModelFit
+from sender.motion import FRAMES_PER_PATTERN, learn_motion
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
@@ -45,7 +46,7 @@ def test_learning_refuses_more_patterns_than_allowed_or_frames():
     with pytest.raises(InputError):
         learn_basis(residuals, vertices, 5)
     with pytest.raises(InputError):
-        learn_basis(planted(n=40)[0], vertices, 9)
+        learn_basis(planted(n=40)[0], vertices, MAX_COMPONENTS + 1)
 
 
 def _face_with_basis():
@@ -143,9 +144,16 @@ def test_enrol_then_send_the_personal_layout_end_to_end(tmp_path, over):
     np.testing.assert_allclose(coeffs, np.load(tmp_path / "sent.npz")["params"][:, cols], atol=0.0011)
 
 
-def test_a_short_clip_gives_a_face_without_a_basis_and_personal_then_refuses(tmp_path):
+def test_a_short_clip_gets_as_many_patterns_as_its_frames_teach():
+    residual = np.random.default_rng(0).normal(size=(3 * FRAMES_PER_PATTERN + 5, 6, 3))
+    assert learn_motion(residual, np.arange(6), 12).components == 3
+    assert learn_motion(residual[:FRAMES_PER_PATTERN - 1], np.arange(6), 12) is None
+
+
+def test_a_clip_too_short_for_one_pattern_gives_a_face_without_a_basis_and_personal_then_refuses(tmp_path):
     face = tmp_path / "me.fdface"
-    enrolled = _run(["sender.enroll", str(CLIP), "-o", str(face), "--motion", "8", "--motion-seconds", "1"])
+    enrolled = _run(["sender.enroll", str(CLIP), "-o", str(face), "--motion", "8", "--frame", "0",
+                     "--motion-seconds", "0.2"])
     assert enrolled.returncode == 0, enrolled.stderr.decode()
     assert "no motion basis" in enrolled.stderr.decode()
     assert load_face_file(face).motion is None
