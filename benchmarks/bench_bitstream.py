@@ -1,11 +1,14 @@
-"""Bits per frame of the stream format on parameter dumps, with the quantisation error beside each.
+"""Bits per frame of the stream format on parameter dumps, with the error of what the decoder outputs beside each.
 
-Dumps come from ``python -m sender.cli CLIP -o /dev/null --dump DUMP.npz``.
-Prints a Markdown table: clip, layout, quality, bits per frame (entropy-coded
-payload, framing, total), bit/s at the clip's frame rate, the largest and rms
-vertex error of the quantised against the unquantised parameters (pixels for a
-face 380 px tall: a 512x512 receiver view), largest angle error, encode and
-decode frames per second.
+Dumps come from ``python -m sender.cli CLIP -o /dev/null --dump DUMP.npz [--params full]``
+(unquantised parameters: the sender's only hold is the encoder's dead zone).
+Prints a Markdown table: clip, layout, quality, dead zone, bits per frame
+(entropy-coded payload, framing, total), bit/s at the clip's frame rate, the
+largest and rms vertex error of every decoded frame (interpolated ones too)
+against the unquantised parameters of that frame (pixels for a face 380 px
+tall: a 512x512 receiver view; head pose included), largest angle error, encode
+and decode frames per second. A paper dump gives two layouts: the paper's 13
+parameters, and with head rotation (what fd-send sends).
 """
 
 import argparse
@@ -14,13 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from codec.deform import PAPER_PARAMS, Deformer
+from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
 from codec.face_model import load_base_face
 from protocol.framing import packet_size
-from protocol.quantise import QUALITIES, dequantise, quantise
+from protocol.quantise import QUALITIES
 from protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, steps_for
 
 FACE_PX = 512 / 1.35  # receiver framing: the view is 1.35 face heights tall
+ANGLES = ("theta", "rx", "ry", "rz")
 
 
 def payload_bits(packets: list[bytes]) -> int:
@@ -34,38 +38,48 @@ def payload_bits(packets: list[bytes]) -> int:
     return bits
 
 
-def bench(path: Path, layout: tuple[str, ...], quality: int, fpp: int, deformer: Deformer) -> str:
+def vertices(deformer: Deformer, layout: tuple[str, ...], params: np.ndarray) -> np.ndarray:
+    """(n, 468, 3) meshes the receiver draws for (n, k) parameters of ``layout``."""
+    full = np.zeros((len(params), len(EXTENDED_PARAMS)))
+    full[:, [EXTENDED_PARAMS.index(n) for n in layout]] = params
+    return np.array([deformer.deform_extended(p) for p in full])
+
+
+def bench(path: Path, layout: tuple[str, ...], quality: int, dead_zone: float, args, deformer: Deformer) -> str:
     d = np.load(path)
     names = tuple(str(n) for n in d["names"])
     fps = float(d["fps"])
-    cols = [names.index(n) for n in layout]
-    params = d["params"][:, cols]
-    found = d["found"]
-    header = Header(fps, layout, steps_for(layout, quality), "00" * 32, quality=quality)
-    enc = PacketEncoder(header, fpp)
+    params = d["params"][:, [names.index(n) for n in layout]]
+    header = Header(fps, layout, steps_for(layout, quality), "00" * 32, quality=quality,
+                    divisor=args.divisor, skip_static=not args.no_static)
+    enc = PacketEncoder(header, args.frames_per_packet, dead_zone=dead_zone)
     head = enc.header()
+    packets, sent = [], {}
     started = time.perf_counter()
-    packets = [p for x, f in zip(params, found) for p in enc.frame(x, f)] + enc.end()
+    for i, (x, found) in enumerate(zip(params, d["found"])):
+        packets += enc.frame(x, found)
+        if i % args.divisor == 0:
+            sent[i] = enc.reconstruction
+    packets += enc.end()
     encode_s = time.perf_counter() - started
-    data = frame_bytes(head) + frame_bytes(packets)
     dec = StreamDecoder()
     started = time.perf_counter()
-    frames = [e for e in dec.feed(data) + dec.close() if isinstance(e, Frame)]
+    frames = [e for e in dec.feed(frame_bytes(head) + frame_bytes(packets)) + dec.close() if isinstance(e, Frame)]
     decode_s = time.perf_counter() - started
     n = len(params)
     assert len(frames) == n and not dec.stats.damaged
+    assert all(np.array_equal(frames[i].params, r) for i, r in sent.items()), "decoder differs from encoder"
+    got = np.array([f.params for f in frames])
     total = 8 * len(frame_bytes(packets)) / n
     payload = payload_bits(packets) / n
-    q = np.array([dequantise(quantise(x, header.steps), header.steps) for x in params])
-    k = len(PAPER_PARAMS)
-    err = np.array([np.linalg.norm(deformer.deform(a[:k]) - deformer.deform(b[:k]), axis=1).max()
-                    for a, b in zip(params, q)]) * FACE_PX
-    angle = [i for i, name in enumerate(layout) if name in ("theta", "rx", "ry", "rz")]
-    angle_err = np.abs(params[:, angle] - q[:, angle]).max()
-    name = "paper" if len(layout) == k else "paper+pose"
-    return (f"| {path.stem} | {name} | {quality} | {payload:.1f} | {total - payload:.1f} | {total:.1f} | "
-            f"{total * fps:.0f} | {err.max():.2f} | {np.sqrt((err ** 2).mean()):.2f} | {angle_err:.3f} | "
-            f"{n / encode_s:.0f} | {n / decode_s:.0f} |")
+    err = np.linalg.norm(vertices(deformer, layout, got) - vertices(deformer, layout, params), axis=2).max(axis=1)
+    err *= FACE_PX
+    angle = [layout.index(a) for a in ANGLES if a in layout]
+    angle_err = np.abs(params[:, angle] - got[:, angle]).max()
+    name = {len(PAPER_PARAMS): "paper", len(PAPER_PARAMS) + 3: "paper+rotation"}.get(len(layout), "full")
+    return (f"| {path.stem} | {name} | {quality} | {dead_zone:g} | {payload:.1f} | {total - payload:.1f} | "
+            f"{total:.1f} | {total * fps:.0f} | {err.max():.2f} | {np.sqrt((err ** 2).mean()):.2f} | "
+            f"{angle_err:.3f} | {n / encode_s:.0f} | {n / decode_s:.0f} |")
 
 
 def main() -> None:
@@ -73,16 +87,24 @@ def main() -> None:
     p.add_argument("dumps", nargs="+", type=Path, help="sender --dump files (.npz)")
     p.add_argument("--frames-per-packet", type=int, default=4)
     p.add_argument("--qualities", type=int, nargs="*", default=list(QUALITIES))
+    p.add_argument("--dead-zones", type=float, nargs="*", default=[0.5, 1.0],
+                   help="encoder dead zones in steps (0.5: plain rounding)")
+    p.add_argument("--divisor", type=int, default=1, help="send one frame in N, the decoder interpolates")
+    p.add_argument("--no-static", action="store_true", help="static-frame flags off (fd-send sets them)")
     args = p.parse_args()
     deformer = Deformer(load_base_face())
-    print(f"frames per packet: {args.frames_per_packet}; vertex error in px for a face {FACE_PX:.0f} px tall")
-    print("| clip | layout | quality | payload bits/frame | framing bits/frame | total bits/frame | bit/s | "
-          "max vertex err px | rms vertex err px | max angle err deg | encode fps | decode fps |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print(f"frames per packet: {args.frames_per_packet}, divisor {args.divisor}, static flags "
+          f"{'off' if args.no_static else 'on'}; vertex error in px for a face {FACE_PX:.0f} px tall")
+    print("| clip | layout | quality | dead zone | payload bits/frame | framing bits/frame | total bits/frame | "
+          "bit/s | max vertex err px | rms vertex err px | max angle err deg | encode fps | decode fps |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for path in args.dumps:
-        for layout in (PAPER_PARAMS, PAPER_PARAMS + ("rx", "ry", "rz")):
+        names = tuple(str(n) for n in np.load(path)["names"])
+        layouts = [names] if len(names) > len(PAPER_PARAMS) + 3 else [PAPER_PARAMS, names]
+        for layout in layouts:
             for quality in args.qualities:
-                print(bench(path, layout, quality, args.frames_per_packet, deformer), flush=True)
+                for dead_zone in args.dead_zones:
+                    print(bench(path, layout, quality, dead_zone, args, deformer), flush=True)
 
 
 if __name__ == "__main__":

@@ -2,6 +2,9 @@
 
 :class:`PacketEncoder` returns packets for datagram transports;
 :class:`StreamEncoder` returns the same packets with sync bytes for byte streams.
+The encoder records what the decoder will output for each coded frame
+(:attr:`PacketEncoder.reconstruction`): with a dead zone that is not the nearest
+quantised value, so it is the only exact prediction of the receiver.
 """
 
 import numpy as np
@@ -11,26 +14,36 @@ from protocol.arith import Encoder
 from protocol.entropy import GroupState
 from protocol.framing import DELTA, END, HEADER, KEY, MAX_COUNT, MODEL, SYNC, build, varint
 from protocol.header import Header, encode_header
-from protocol.quantise import quantise
+from protocol.quantise import DEAD_ZONE, dequantise, hold_or_round
 
 MODEL_CHUNK = 1024
 _MAX_INDEX = 1 << 30  # quantised values beyond this are a caller's bug (NaN, wrong units)
+MAX_DEAD_ZONE = 4.0  # steps: beyond this a coarser quality level costs fewer bits for the same error
 
 
 class PacketEncoder:
     """Packets of one stream. ``frames_per_packet`` (1-32) trades latency for framing bits.
 
     Packets never span a keyframe; with ``header.skip_static`` a frame equal to
-    the previous does not count towards ``frames_per_packet``.
+    the previous does not count towards ``frames_per_packet``. ``dead_zone``
+    (steps, 0.5-4; 0.5: plain rounding) bounds each parameter's error: see
+    :func:`protocol.quantise.hold_or_round`. It holds across keyframes too, so a
+    still value does not jump once a second.
     """
 
-    def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"") -> None:
+    def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"",
+                 dead_zone: float = DEAD_ZONE) -> None:
         if not 1 <= frames_per_packet <= MAX_COUNT:
             raise BitstreamError(f"frames per packet must be 1-{MAX_COUNT}")
+        if not 0.5 <= dead_zone <= MAX_DEAD_ZONE:
+            raise BitstreamError(f"dead zone must be 0.5-{MAX_DEAD_ZONE:g} steps, not {dead_zone!r}")
         if len(model) != header.model_size:
             raise BitstreamError(f"header announces {header.model_size} model bytes, got {len(model)}")
-        self._h, self._fpp, self._model = header, frames_per_packet, model
+        self._h, self._fpp, self._model, self._dead_zone = header, frames_per_packet, model, dead_zone
         self._frames = 0
+        self._held: list[int] | None = None
+        #: (k,) float64 the decoder outputs for the last coded frame (None before one): exactly its Frame.params.
+        self.reconstruction: np.ndarray | None = None
         self._group: GroupState | None = None
         self._coder: Encoder | None = None
         self._kind = self._first = self._count = self._active = 0
@@ -50,9 +63,10 @@ class PacketEncoder:
         if index % self._h.divisor:
             return []
         coded = index // self._h.divisor
-        values = quantise(params, self._h.steps)
+        values = hold_or_round(params, self._h.steps, self._held, self._dead_zone)
         if max(map(abs, values)) >= _MAX_INDEX:
             raise BitstreamError("parameter out of range for the stream's steps")
+        self._held, self.reconstruction = values, dequantise(values, self._h.steps)
         face = bool(face_seen)
         if coded % self._h.key_interval == 0:
             self._group = GroupState(len(values), self._h.skip_static)
@@ -89,8 +103,9 @@ class PacketEncoder:
 class StreamEncoder:
     """:class:`PacketEncoder` for byte streams: the same methods return bytes, each packet after a sync byte."""
 
-    def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"") -> None:
-        self.packets = PacketEncoder(header, frames_per_packet, model)
+    def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"",
+                 dead_zone: float = DEAD_ZONE) -> None:
+        self.packets = PacketEncoder(header, frames_per_packet, model, dead_zone)
 
     def header(self) -> bytes:
         return frame_bytes(self.packets.header())

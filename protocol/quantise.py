@@ -1,8 +1,14 @@
-"""Uniform scalar quantisation with steps set by a quality level.
+"""Uniform scalar quantisation with steps set by a quality level, and the encoder's dead zone.
 
 Both ends turn the integers back into the same floats, so what the receiver
 renders is exactly what the sender's dump of decoded values predicts. The steps
 of each level and why they are small enough are in docs/bitstream.md.
+
+The encoder may send an index other than the nearest one: :func:`hold_or_round`
+keeps the index the decoder already holds while the value stays within a dead
+zone of it (an unchanged value costs a fraction of a bit), so tracker jitter
+smaller than the dead zone is not sent and a still face does not flicker. The
+decoder does not know the dead zone; it bounds the error instead of half a step.
 """
 
 import numpy as np
@@ -18,9 +24,13 @@ VECTOR_STEP = 0.002
 LID_STEP = 0.05
 ANGLES = ("theta", "rx", "ry", "rz", "gaze_yaw", "gaze_pitch")
 LIDS = ("lid_l", "lid_r")
-#: Typical bits per frame of the paper layout at 25 fps per level, measured by
-#: benchmarks/bench_bitstream.py on the dev clips (4 frames per packet); drives :func:`quality_for_bitrate`.
-TYPICAL_BITS = {1: 34.0, 2: 45.0, 3: 57.0, 4: 70.0, 5: 83.0}
+#: Default dead zone in steps: one step, as the sender's hold was before it moved here (then fixed at
+#: level 3's steps); 0.5 is plain rounding. Bits and errors of each are in docs/bitstream.md.
+DEAD_ZONE = 1.0
+#: Typical bits per frame of the paper layout (with head rotation) per level at the default dead zone: the
+#: middle of the range benchmarks/bench_bitstream.py measures on the dev clips (4 frames per packet, static flags);
+#: drives :func:`quality_for_bitrate`.
+TYPICAL_BITS = {1: 24.0, 2: 36.0, 3: 50.0, 4: 64.0, 5: 80.0}
 
 
 def steps_for(names: tuple[str, ...], quality: int = DEFAULT_QUALITY) -> np.ndarray:
@@ -41,6 +51,19 @@ def quality_for_bitrate(bits_per_second: float, fps: float) -> int:
 def quantise(values: np.ndarray, steps: np.ndarray) -> list[int]:
     """(k,) floats -> k Python ints."""
     return [int(q) for q in np.rint(np.asarray(values, dtype=np.float64) / steps)]
+
+
+def hold_or_round(values: np.ndarray, steps: np.ndarray, held: list[int] | None, dead_zone: float) -> list[int]:
+    """(k,) floats -> k ints: ``held`` (the decoder's last indices) where a value is less than
+    ``dead_zone`` steps from it, elsewhere the nearest index: error at most ``max(dead_zone, 0.5)`` steps.
+
+    ``dead_zone`` 0.5 (or ``held`` None) is plain :func:`quantise`: a held index that close is the nearest.
+    """
+    nearest = quantise(values, steps)
+    if held is None:
+        return nearest
+    near = np.abs(np.asarray(values, dtype=np.float64) / steps - held) < dead_zone
+    return [h if keep else n for h, n, keep in zip(held, nearest, near)]
 
 
 def dequantise(indices, steps: np.ndarray) -> np.ndarray:

@@ -55,6 +55,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     rate.add_argument("--quality", type=int, choices=range(1, 6), default=3, metavar="1-5",
                    help="quantiser fineness, 1 (coarse, fewest bits) to 5 (fine); each level halves the "
                         "steps of the one below (default 3: 0.25 degree, 0.002 face heights)")
+    p.add_argument("--dead-zone", type=float, default=1.0, metavar="STEPS",
+                   help="a parameter is resent only once it is this many quantiser steps from what the "
+                        "receiver shows (0.5-4; default 1): tracker jitter below it costs no bits "
+                        "and a still face does not flicker, at up to this many steps of error; 0.5 is plain "
+                        "rounding (error at most half a step)")
     p.add_argument("--frames-per-packet", type=int, choices=range(1, 33), default=2, metavar="N",
                    help="frames sent together (1-32): fewer framing bits, N-1 frames more latency (default 2)")
     p.add_argument("--key", metavar="FILE",
@@ -103,7 +108,7 @@ def _run(args) -> int:
     progress = progress_for("fd-send", args.quiet or args.json) if source.length else None
     session = SendSession(source, quality, args.frames_per_packet, args.params,
                           args.neutral, args.smoothing, args.face, embed_face=not args.face_by_id,
-                          key=key, tag_bits=args.tag_bits or DEFAULT_TAG_BITS)
+                          key=key, tag_bits=args.tag_bits or DEFAULT_TAG_BITS, dead_zone=args.dead_zone)
     sink = None
     try:
         for packets in session.packets():

@@ -7,6 +7,7 @@ import numpy as np
 
 from codec.face_file import decode_face, read_face_bytes
 from codec.face_model import load_base_face
+from protocol.quantise import DEAD_ZONE
 from protocol.secure import DEFAULT_TAG_BITS, SecureSealer
 from protocol.stream import DEFAULT_QUALITY, Header, PacketEncoder, frame_bytes, steps_for
 from sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
@@ -21,13 +22,15 @@ class SendSession:
     neutral: the rest frame's index (default: chosen in the first second);
     smoothing: One Euro strength (0: off); face_file: a personal face model (fd-enroll) to fit
     and render instead of the generic face, carried in the stream when ``embed_face``; key: a
-    pre-shared key (``protocol.secure``) to seal every packet with, tags of ``tag_bits``.
+    pre-shared key (``protocol.secure``) to seal every packet with, tags of ``tag_bits``;
+    dead_zone: the encoder's dead zone in quantiser steps (0.5: plain rounding). The encoder holds
+    values against what the receiver shows, so the analyser's own hold is off: one dead zone, not two.
     """
 
     def __init__(self, source, quality: int = DEFAULT_QUALITY, frames_per_packet: int = 2,
                  layout: str = "paper", neutral: int | None = None, smoothing: float = 1.0,
                  face_file: str | None = None, embed_face: bool = True, key: bytes | None = None,
-                 tag_bits: int = DEFAULT_TAG_BITS) -> None:
+                 tag_bits: int = DEFAULT_TAG_BITS, dead_zone: float = DEAD_ZONE) -> None:
         from sender.tracker import FaceTracker
 
         self.source = open_source(source) if isinstance(source, str) else source
@@ -40,11 +43,12 @@ class SendSession:
             model = data if embed_face else b""
         fps = self.source.fps
         self.analyser = FaceAnalyser(FaceTracker(), face, fps, layout, calibration_frames=round(fps),
-                                     neutral=neutral, smoothing=Smoothing(smoothing))
+                                     neutral=neutral, smoothing=Smoothing(smoothing, hold=0.0))
         names = self.analyser.names
+        # static-frame flags: with the dead zone a still face sends unchanged frames, a flag each
         self.header = Header(fps, names, steps_for(names, quality), face.content_id, quality=quality,
-                             key_interval=max(1, min(255, round(fps))), model_size=len(model))
-        self.encoder = PacketEncoder(self.header, frames_per_packet, model)
+                             key_interval=max(1, min(255, round(fps))), skip_static=True, model_size=len(model))
+        self.encoder = PacketEncoder(self.header, frames_per_packet, model, dead_zone)
         self.sealer = None if key is None else SecureSealer(key, tag_bits)
         self.frames: list[FrameAnalysis] = []
         self.stream_bytes = 0  # as a byte stream (sync bytes included), header excluded

@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from protocol.quantise import DEAD_ZONE, steps_for
 from sender.calibrate import lip_gap
 from tests.test_output import parse_y4m
 
@@ -81,8 +82,9 @@ def test_decoded_jaw_angle_follows_the_mouth_opening(sent, tmp_path):
     gap = [lip_gap(lm) for lm in dump["landmarks"]]
     # the default smoothing delays theta by about one frame (40 ms): allow that lag, no more
     assert max(np.corrcoef(theta[k:], gap[:len(gap) - k])[0, 1] for k in range(2)) > 0.8
-    # the receiver holds what the sender meant, to within half a quantiser step
-    np.testing.assert_allclose(decoded["params"], dump["params"], atol=0.13)
+    # the receiver holds what the sender meant, to within the encoder's dead zone in every parameter
+    steps = steps_for(tuple(str(n) for n in decoded["names"]))
+    assert np.all(np.abs(decoded["params"] - dump["params"]) <= DEAD_ZONE * steps * (1 + 1e-9))
 
 
 def test_unsmoothed_jaw_angle_follows_the_mouth_opening_without_lag(tmp_path):

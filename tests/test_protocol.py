@@ -9,7 +9,7 @@ from codec.deform import PAPER_PARAMS
 from codec.errors import BitstreamError
 from protocol.framing import DELTA, HEADER, build
 from protocol.header import MAX_MODEL, encode_header
-from protocol.quantise import QUALITIES, dequantise, quantise
+from protocol.quantise import QUALITIES, dequantise, hold_or_round, quantise
 from protocol.stream import (Damage, DatagramDecoder, End, Frame, Header, Model, PacketEncoder, StreamDecoder,
                              frame_bytes, steps_for)
 
@@ -27,10 +27,18 @@ def walk(n: int, k: int, seed: int = 0) -> np.ndarray:
     return np.cumsum(rng.normal(0, 0.004, (n, k)), axis=0)
 
 
-def encode(h: Header, params: np.ndarray, fpp: int = 1, faces=None, model=b"") -> list[bytes]:
-    enc = PacketEncoder(h, fpp, model)
+def encode(h: Header, params: np.ndarray, fpp: int = 1, faces=None, model=b"", dead_zone=0.5,
+           sent=None) -> list[bytes]:
+    """The stream's packets, plain rounding unless a ``dead_zone`` is given; ``sent`` (a list) receives the
+    encoder's reconstruction of each coded frame."""
+    enc = PacketEncoder(h, fpp, model, dead_zone)
     faces = [True] * len(params) if faces is None else faces
-    return enc.header() + [p for x, f in zip(params, faces) for p in enc.frame(x, f)] + enc.end()
+    packets = enc.header()
+    for i, (x, f) in enumerate(zip(params, faces)):
+        packets += enc.frame(x, f)
+        if sent is not None and i % h.divisor == 0:
+            sent.append(enc.reconstruction)
+    return packets + enc.end()
 
 
 def decode(data: bytes, chunk: int | None = None) -> tuple[list, StreamDecoder]:
@@ -58,6 +66,67 @@ def test_round_trip_gives_the_quantised_values(names, quality, fpp, static, key,
     for f, x, face in zip(got, params, faces):
         np.testing.assert_array_equal(f.params, dequantise(quantise(x, h.steps), h.steps))
         assert f.face_seen == face and not f.concealed
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.sampled_from(LAYOUTS), st.sampled_from(QUALITIES), st.floats(0.5, 4), st.integers(1, 32), st.booleans(),
+       st.integers(1, 30), st.integers(1, 4), st.lists(st.floats(-2, 2), min_size=0, max_size=60),
+       st.integers(0, 2**32 - 1))
+def test_decoder_outputs_the_encoders_reconstruction_within_the_dead_zone(
+        names, quality, dead_zone, fpp, static, key, divisor, jumps, seed):
+    h = header(names, quality, skip_static=static, key_interval=key, divisor=divisor)
+    params = walk(len(jumps), len(names), seed) + np.array(jumps)[:, None]
+    params[1::3] = params[0::3][:len(params[1::3])]
+    sent: list[np.ndarray] = []
+    events, dec = decode(frame_bytes(encode(h, params, fpp, dead_zone=dead_zone, sent=sent)))
+    got = frames(events)
+    assert [f.seq for f in got] == list(range(len(params))) and not dec.stats.damaged
+    coded = [f for f in got if f.seq % divisor == 0]
+    assert len(coded) == len(sent) and not any(f.interpolated for f in coded)
+    for f, r in zip(coded, sent):
+        np.testing.assert_array_equal(f.params, r)
+        assert np.all(np.abs(r - params[f.seq]) <= max(dead_zone, 0.5) * h.steps * (1 + 1e-9))
+
+
+@given(st.lists(st.floats(-1, 1), min_size=1, max_size=40), st.floats(0.5, 4))
+def test_dead_zone_holds_what_the_decoder_has_until_the_value_leaves_it(track, dead_zone):
+    steps = np.array([0.01])
+    held = None
+    for x in track:
+        index = hold_or_round(np.array([x]), steps, held, dead_zone)
+        nearest = quantise(np.array([x]), steps)
+        if held is not None and abs(x / steps[0] - held[0]) < dead_zone:
+            assert index == held
+        else:
+            assert index == nearest
+        held = index
+
+
+@given(st.lists(st.floats(-1, 1), min_size=2, max_size=40))
+def test_half_step_dead_zone_is_plain_rounding(track):
+    steps = np.array([0.01])
+    held = None
+    for x in track:
+        held = hold_or_round(np.array([x]), steps, held, 0.5)
+        assert held == quantise(np.array([x]), steps)
+
+
+def test_dead_zone_keeps_a_jittering_value_still_and_costs_fewer_bits():
+    h = header()
+    rng = np.random.default_rng(1)
+    still = np.arange(13) * h.steps  # on the quantiser's grid: the first frame holds it exactly
+    params = still + rng.uniform(-0.95, 0.95, (100, 13)) * h.steps
+    params[0] = still
+    sent: list[np.ndarray] = []
+    held = frame_bytes(encode(h, params, 4, dead_zone=1.0, sent=sent)[1:])  # after the header
+    assert all(np.array_equal(r, still) for r in sent)
+    assert len(held) < len(frame_bytes(encode(h, params, 4)[1:])) / 2
+
+
+def test_dead_zone_out_of_range_is_refused():
+    for bad in (0.4, 4.5, float("nan")):
+        with pytest.raises(BitstreamError, match="dead zone"):
+            PacketEncoder(header(), 1, dead_zone=bad)
 
 
 def test_datagrams_decode_like_the_byte_stream():
