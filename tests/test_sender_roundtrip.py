@@ -45,7 +45,7 @@ def render_and_send(truth=None):
     ok, frame = cv2.VideoCapture(str(GRID)).read()
     assert ok
     landmarks = FaceTracker().track(frame)
-    texture = texture_from_frame(frame, landmarks[:, :2], face.uv, face.faces, 512)
+    texture = texture_from_frame(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB), landmarks[:, :2], face.uv, face.faces, 512)
     renderer = Renderer(face.faces, size=(SIZE, SIZE), uv=face.uv, texture=texture,
                         mouth_faces=face.mouth_faces, eye_faces=face.eye_faces, background=(40, 40, 40))
     camera = portrait_camera(face)
@@ -53,7 +53,8 @@ def render_and_send(truth=None):
     if truth is None:
         rng = np.random.default_rng(5)
         truth = np.array([np.zeros(len(EXTENDED_PARAMS))] + [random_params(rng, deformer) for _ in range(FRAMES)])
-    frames = [renderer.render(deformer.deform_extended(p), camera, deformer.iris(p)[0])[0] for p in truth]
+    frames = [cv2.cvtColor(renderer.render(deformer.deform_extended(p), camera, deformer.iris(p)[0])[0],
+                           cv2.COLOR_RGB2BGR) for p in truth]  # the renderer's mouth and eyes are RGB
     analyser = FaceAnalyser(FaceTracker(), face, 25.0, "paper", neutral=0, smoothing=Smoothing(0))
     results = list(analyser.run(frames))
     return truth, analyser.names, results, frames, face
@@ -95,8 +96,10 @@ def test_parameters_follow_the_truth(round_trip):
     assert e["pose"] < 4.0
 
 
-@pytest.mark.xfail(reason="the face-mesh model moves the chin of a rendered face about 0.4 times as far "
-                          "as the mesh's jaw rotates it, so theta comes out low (see errors())", strict=False)
+@pytest.mark.xfail(reason="theta comes out at about 0.4 times its value: the mesh's jaw, hinged at the mesh's rim, "
+                          "moves the chin mostly away from the camera (0.11 back, 0.06 down at 10 degrees), and "
+                          "the tracker's depth follows that about 0.25 times, its drop of the chin front in the image "
+                          "0.75 times; pose: it reads rendered yaw 1.2 times", strict=False)
 def test_parameters_are_recovered_within_the_issue_bounds(round_trip):
     e = errors(round_trip)
     assert e["theta"] < 1.0 and e["vectors"] < 0.05 and e["pose"] < 2.0
