@@ -84,12 +84,13 @@ def speed() -> None:
         print(f"| {size[0]}x{size[1]} | {track:.0f} | {rates['paper']:.0f} | {rates['full']:.0f} | {both:.0f} |")
 
 
-def code(names, results, fps: float, quality: int = 3) -> tuple[float, np.ndarray]:
+def code(names, results, fps: float, quality: int = 3, frames_per_packet: int = 2) -> tuple[float, np.ndarray]:
     """(bits per frame, (n, k) parameters the decoder outputs for the frames with a face): the
-    results coded as a stream of their own and decoded again, so that the fidelity measured is the
-    receiver's, whatever the encoder chose to send."""
-    header = Header(fps, names, steps_for(names, quality), load_base_face().content_id, key_interval=round(fps))
-    encoder = PacketEncoder(header, 2)
+    results coded as fd-send codes them, as a stream of their own, and decoded again, so that the
+    fidelity measured is the receiver's, whatever the encoder chose to send."""
+    header = Header(fps, names, steps_for(names, quality), load_base_face().content_id, key_interval=round(fps),
+                    skip_static=True)
+    encoder = PacketEncoder(header, frames_per_packet)
     body = b"".join(frame_bytes(encoder.frame(r.params, r.landmarks is not None)) for r in results)
     body += frame_bytes(encoder.end())
     decoder = StreamDecoder()

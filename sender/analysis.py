@@ -53,16 +53,15 @@ class Smoothing:
     """One Euro settings; ``strength`` divides both the cutoff and the speed gain (0: off).
 
     stage "landmarks" filters the pose-free landmarks and the pose before the
-    fit; "params" filters the fitted parameters. ``hold`` is a dead band on the
-    output: a still face then sends the same numbers frame after frame. Units
-    are quantiser steps at the default quality.
+    fit; "params" filters the fitted parameters. A still face's steadiness on the
+    wire is the encoder's dead zone (protocol.quantise.hold_or_round), which
+    knows what the receiver holds.
     """
 
     strength: float = 1.0
     stage: str = "landmarks"
     min_cutoff: float = 1.0
     beta: float = 0.05
-    hold: float = 1.0  # a parameter moves only when it would move this many steps (times strength)
 
     def filter(self, rate: float, scale) -> OneEuroFilter | None:
         if self.strength <= 0:
@@ -112,8 +111,6 @@ class FaceAnalyser:
         self._landmark_filter = smoothing.filter(fps, VECTOR_STEP) if on_landmarks else None
         self._pose_filter = smoothing.filter(fps, steps[-len(self._pose_names()):]) if on_landmarks else None
         self._param_filter = None if on_landmarks else smoothing.filter(fps, steps)
-        self._hold = smoothing.hold * smoothing.strength * steps
-        self._held: np.ndarray | None = None
         self.frames_without_face = 0
 
     def _pose_names(self) -> tuple[str, ...]:
@@ -176,7 +173,6 @@ class FaceAnalyser:
             for f in filters:
                 if f is not None:
                     f.reset()
-            self._held = None
             return previous * RELAX, None
         observed = target = self.rest.target(aligned, self._base)
         head = self._head(pose)
@@ -192,9 +188,6 @@ class FaceAnalyser:
         params = np.concatenate(parts + [head])
         if self._param_filter is not None:
             params = self._param_filter(params)
-        if self._held is not None:
-            params = np.where(np.abs(params - self._held) < self._hold, self._held, params)
-        self._held = params
         return params, observed
 
     def _head(self, pose: Pose) -> np.ndarray:

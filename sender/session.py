@@ -23,8 +23,7 @@ class SendSession:
     smoothing: One Euro strength (0: off); face_file: a personal face model (fd-enroll) to fit
     and render instead of the generic face, carried in the stream when ``embed_face``; key: a
     pre-shared key (``protocol.secure``) to seal every packet with, tags of ``tag_bits``;
-    dead_zone: the encoder's dead zone in quantiser steps (0.5: plain rounding). The encoder holds
-    values against what the receiver shows, so the analyser's own hold is off: one dead zone, not two.
+    dead_zone: the encoder's dead zone in quantiser steps (0.5: plain rounding).
     """
 
     def __init__(self, source, quality: int = DEFAULT_QUALITY, frames_per_packet: int = 2,
@@ -43,7 +42,7 @@ class SendSession:
             model = data if embed_face else b""
         fps = self.source.fps
         self.analyser = FaceAnalyser(FaceTracker(), face, fps, layout, calibration_frames=round(fps),
-                                     neutral=neutral, smoothing=Smoothing(smoothing, hold=0.0))
+                                     neutral=neutral, smoothing=Smoothing(smoothing))
         names = self.analyser.names
         # static-frame flags: with the dead zone a still face sends unchanged frames, a flag each
         self.header = Header(fps, names, steps_for(names, quality), face.content_id, quality=quality,
