@@ -27,10 +27,6 @@ LIDS = ("lid_l", "lid_r")
 #: Default dead zone in steps: one step, as the sender's hold was before it moved here (then fixed at
 #: level 3's steps); 0.5 is plain rounding. Bits and errors of each are in docs/bitstream.md.
 DEAD_ZONE = 1.0
-#: Typical bits per frame of the paper layout (with head rotation) per level at the default dead zone: the
-#: middle of the range benchmarks/bench_bitstream.py measures on the dev clips (4 frames per packet, static flags);
-#: drives :func:`quality_for_bitrate`.
-TYPICAL_BITS = {1: 24.0, 2: 36.0, 3: 50.0, 4: 64.0, 5: 80.0}
 
 
 def steps_for(names: tuple[str, ...], quality: int = DEFAULT_QUALITY) -> np.ndarray:
@@ -40,12 +36,6 @@ def steps_for(names: tuple[str, ...], quality: int = DEFAULT_QUALITY) -> np.ndar
     scale = 2.0 ** (DEFAULT_QUALITY - quality)
     return np.array([(ANGLE_STEP if n in ANGLES else LID_STEP if n in LIDS else VECTOR_STEP) * scale
                      for n in names])
-
-
-def quality_for_bitrate(bits_per_second: float, fps: float) -> int:
-    """The finest level whose typical rate fits ``bits_per_second`` (open loop: a guide, not a cap)."""
-    fitting = [q for q in QUALITIES if TYPICAL_BITS[q] * fps <= bits_per_second]
-    return max(fitting, default=QUALITIES[0])
 
 
 def quantise(values: np.ndarray, steps: np.ndarray) -> list[int]:

@@ -10,7 +10,8 @@ from protocol.decoder import DatagramDecoder, PacketDecoder, StreamDecoder
 from protocol.encoder import PacketEncoder, StreamEncoder, frame_bytes
 from protocol.events import Damage, End, Frame, Model, Stats
 from protocol.header import VERSION, Header
-from protocol.quantise import DEFAULT_QUALITY, QUALITIES, quality_for_bitrate, steps_for
+from protocol.quantise import DEFAULT_QUALITY, QUALITIES, steps_for
+from protocol.rate import quality_for_bitrate
 
 __all__ = [
     "DEFAULT_QUALITY", "QUALITIES", "VERSION", "Damage", "DatagramDecoder", "End", "Frame", "Header",

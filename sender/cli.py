@@ -50,8 +50,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "(steadier and cheaper, slower to follow)")
     rate = p.add_mutually_exclusive_group()
     rate.add_argument("--bitrate", type=float, metavar="KBPS",
-                      help="aim at this many kbit/s instead of a --quality: the finest level whose typical "
-                           "rate fits (open loop, measured on the dev clips; a guide, not a cap)")
+                      help="aim at this many kbit/s instead of a --quality: the finest level that codes the "
+                           "first second of this call within it (a choice made once, not a cap: livelier "
+                           "talking later costs more)")
     rate.add_argument("--quality", type=int, choices=range(1, 6), default=3, metavar="1-5",
                    help="quantiser fineness, 1 (coarse, fewest bits) to 5 (fine); each level halves the "
                         "steps of the one below (default 3: 0.25 degree, 0.002 face heights)")
@@ -96,7 +97,6 @@ def main(argv=None) -> int:
 def _run(args) -> int:
     from codec.progress import progress_for
     from protocol.secure import DEFAULT_TAG_BITS
-    from protocol.stream import quality_for_bitrate
     from sender.keygen import read_key
     from sender.session import SendSession
     from sender.sources import open_source
@@ -104,11 +104,11 @@ def _run(args) -> int:
 
     key = read_key(args.key) if args.key else None
     source = open_source(args.input, args.camera, args.fps)
-    quality = args.quality if args.bitrate is None else quality_for_bitrate(1000 * args.bitrate, source.fps)
     progress = progress_for("fd-send", args.quiet or args.json) if source.length else None
-    session = SendSession(source, quality, args.frames_per_packet, args.params,
+    session = SendSession(source, args.quality, args.frames_per_packet, args.params,
                           args.neutral, args.smoothing, args.face, embed_face=not args.face_by_id,
-                          key=key, tag_bits=args.tag_bits or DEFAULT_TAG_BITS, dead_zone=args.dead_zone)
+                          key=key, tag_bits=args.tag_bits or DEFAULT_TAG_BITS, dead_zone=args.dead_zone,
+                          bitrate=None if args.bitrate is None else 1000 * args.bitrate)
     sink = None
     try:
         for packets in session.packets():

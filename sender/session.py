@@ -2,6 +2,7 @@
 
 import time
 from collections.abc import Iterator
+from itertools import chain, islice
 
 import numpy as np
 
@@ -9,7 +10,7 @@ from codec.face_file import decode_face, read_face_bytes
 from codec.face_model import load_base_face
 from protocol.quantise import DEAD_ZONE
 from protocol.secure import DEFAULT_TAG_BITS, SecureSealer
-from protocol.stream import DEFAULT_QUALITY, Header, PacketEncoder, frame_bytes, steps_for
+from protocol.stream import DEFAULT_QUALITY, Header, PacketEncoder, frame_bytes, quality_for_bitrate, steps_for
 from sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
 from sender.sources import open_source
 
@@ -23,13 +24,16 @@ class SendSession:
     smoothing: One Euro strength (0: off); face_file: a personal face model (fd-enroll) to fit
     and render instead of the generic face, carried in the stream when ``embed_face``; key: a
     pre-shared key (``protocol.secure``) to seal every packet with, tags of ``tag_bits``;
-    dead_zone: the encoder's dead zone in quantiser steps (0.5: plain rounding).
+    dead_zone: the encoder's dead zone in quantiser steps (0.5: plain rounding); bitrate: bit/s
+    to aim at instead of ``quality``: the finest level that codes the first second of the call
+    within it (``protocol.rate``), chosen before the header goes out.
     """
 
     def __init__(self, source, quality: int = DEFAULT_QUALITY, frames_per_packet: int = 2,
                  layout: str = "paper", neutral: int | None = None, smoothing: float = 1.0,
                  face_file: str | None = None, embed_face: bool = True, key: bytes | None = None,
-                 tag_bits: int = DEFAULT_TAG_BITS, dead_zone: float = DEAD_ZONE) -> None:
+                 tag_bits: int = DEFAULT_TAG_BITS, dead_zone: float = DEAD_ZONE,
+                 bitrate: float | None = None) -> None:
         from sender.tracker import FaceTracker
 
         self.source = open_source(source) if isinstance(source, str) else source
@@ -43,11 +47,9 @@ class SendSession:
         fps = self.source.fps
         self.analyser = FaceAnalyser(FaceTracker(), face, fps, layout, calibration_frames=round(fps),
                                      neutral=neutral, smoothing=Smoothing(smoothing))
-        names = self.analyser.names
-        # static-frame flags: with the dead zone a still face sends unchanged frames, a flag each
-        self.header = Header(fps, names, steps_for(names, quality), face.content_id, quality=quality,
-                             key_interval=max(1, min(255, round(fps))), skip_static=True, model_size=len(model))
-        self.encoder = PacketEncoder(self.header, frames_per_packet, model, dead_zone)
+        self._face_id, self._model, self._fpp, self._dead_zone = face.content_id, model, frames_per_packet, dead_zone
+        self._bitrate = bitrate
+        self._configure(quality)
         self.sealer = None if key is None else SecureSealer(key, tag_bits)
         self.frames: list[FrameAnalysis] = []
         self.stream_bytes = 0  # as a byte stream (sync bytes included), header excluded
@@ -55,10 +57,28 @@ class SendSession:
         self._ended = False
         self._started = time.perf_counter()
 
+    def _header(self, quality: int) -> Header:
+        names = self.analyser.names
+        # static-frame flags: with the dead zone a still face sends unchanged frames, a flag each
+        return Header(self.source.fps, names, steps_for(names, quality), self._face_id, quality=quality,
+                      key_interval=max(1, min(255, round(self.source.fps))), skip_static=True,
+                      model_size=len(self._model))
+
+    def _configure(self, quality: int) -> None:
+        self.header = self._header(quality)
+        self.encoder = PacketEncoder(self.header, self._fpp, self._model, self._dead_zone)
+
     def packets(self) -> Iterator[list[bytes]]:
         """Lists of packets: the header once a face is known (a clip without one sends nothing),
         then what each frame completes, then the end mark."""
-        for seq, result in enumerate(self.analyser.run(self.source.frames())):
+        results = self.analyser.run(self.source.frames())
+        if self._bitrate is not None:
+            first = list(islice(results, max(1, round(self.source.fps))))
+            if first:
+                sample = [(r.params, r.landmarks is not None) for r in first]
+                self._configure(quality_for_bitrate(self._header, sample, self._bitrate, self._fpp, self._dead_zone))
+            results = chain(first, results)
+        for seq, result in enumerate(results):
             if seq == 0:
                 header = self._seal(self.encoder.header())
                 if self.sealer is not None:

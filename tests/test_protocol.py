@@ -281,3 +281,16 @@ def test_delta_from_another_position_is_rejected():
     for p in packets[:2] + [moved]:
         out = events.receive(p)
     assert isinstance(out[0], Damage)
+
+
+def test_bitrate_choice_is_the_finest_level_that_codes_the_sample_within_the_target():
+    from protocol.rate import quality_for_bitrate, sample_bits_per_second
+
+    sample = [(p, True) for p in walk(25, len(PAPER_PARAMS), seed=3)]  # a second of lively talking
+    rates = {q: sample_bits_per_second(header(quality=q), sample, 2, 1.0) for q in QUALITIES}
+    assert all(rates[q] < rates[q + 1] for q in QUALITIES[:-1])  # finer levels cost more
+    for q in QUALITIES:
+        assert quality_for_bitrate(lambda level: header(quality=level), sample, rates[q], 2, 1.0) == q
+        assert quality_for_bitrate(lambda level: header(quality=level), sample, rates[q] * 0.999, 2, 1.0) == max(q - 1, 1)
+    # a model carried in-band is one-off: it does not count against the rate
+    assert sample_bits_per_second(header(model_size=5000), sample, 2, 1.0) == rates[3]

@@ -1,0 +1,37 @@
+"""Choosing the quality level for a target bitrate, closed loop, from a sample of the call itself.
+
+How many bits a level costs depends on the speaker, the layout and the
+tracker's jitter far more than on the level alone (a factor of two between the
+dev clips), so a table of typical rates misses. The sender holds its first
+second anyway to find the rest face; coding that second at every level takes a
+millisecond, and the finest level that fits is the choice.
+"""
+
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from protocol.encoder import PacketEncoder, frame_bytes
+from protocol.header import Header
+from protocol.quantise import QUALITIES
+
+
+def sample_bits_per_second(header: Header, sample: Sequence[tuple[np.ndarray, bool]], frames_per_packet: int,
+                           dead_zone: float) -> float:
+    """Bit/s of ``sample`` ((k,) params, face seen) coded as a stream of its own under ``header``
+    (without its face model or end mark: what every second of the call costs)."""
+    encoder = PacketEncoder(replace(header, model_size=0), frames_per_packet, dead_zone=dead_zone)
+    body = b"".join(frame_bytes(encoder.frame(params, seen)) for params, seen in sample)
+    body += frame_bytes(encoder.end()[:-1])
+    return 8 * len(body) * header.fps / len(sample)
+
+
+def quality_for_bitrate(header_at: Callable[[int], Header], sample: Sequence[tuple[np.ndarray, bool]],
+                        bits_per_second: float, frames_per_packet: int, dead_zone: float) -> int:
+    """The finest level whose ``header_at(level)`` codes ``sample`` within ``bits_per_second``; the
+    coarsest level if none does."""
+    for quality in sorted(QUALITIES, reverse=True):
+        if sample_bits_per_second(header_at(quality), sample, frames_per_packet, dead_zone) <= bits_per_second:
+            return quality
+    return min(QUALITIES)
