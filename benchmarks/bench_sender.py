@@ -27,8 +27,9 @@ import numpy as np
 
 from codec.deform import Deformer
 from codec.face_model import load_base_face
-from protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, steps_for
-from protocol.quantise import QUALITIES
+from protocol.stream import (Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, quality_for_bitrate,
+                             steps_for)
+from protocol.quantise import DEAD_ZONE, QUALITIES
 from sender.analysis import LAYOUTS, FaceAnalyser, Smoothing
 from sender.calibrate import lip_gap
 from sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity
@@ -84,12 +85,16 @@ def speed() -> None:
         print(f"| {size[0]}x{size[1]} | {track:.0f} | {rates['paper']:.0f} | {rates['full']:.0f} | {both:.0f} |")
 
 
-def code(names, results, fps: float, quality: int = 3, frames_per_packet: int = 2) -> tuple[float, np.ndarray]:
+def stream_header(names, fps: float, quality: int = 3) -> Header:
+    """The header fd-send writes for these parameters (static flags, a keyframe a second)."""
+    return Header(fps, names, steps_for(names, quality), load_base_face().content_id, quality=quality,
+                  key_interval=round(fps), skip_static=True)
+
+
+def code(header: Header, results, frames_per_packet: int = 2) -> tuple[float, np.ndarray]:
     """(bits per frame, (n, k) parameters the decoder outputs for the frames with a face): the
-    results coded as fd-send codes them, as a stream of their own, and decoded again, so that the
-    fidelity measured is the receiver's, whatever the encoder chose to send."""
-    header = Header(fps, names, steps_for(names, quality), load_base_face().content_id, key_interval=round(fps),
-                    skip_static=True)
+    results coded as a stream of their own and decoded again, so that the fidelity measured is
+    the receiver's, whatever the encoder chose to send."""
     encoder = PacketEncoder(header, frames_per_packet)
     body = b"".join(frame_bytes(encoder.frame(r.params, r.landmarks is not None)) for r in results)
     body += frame_bytes(encoder.end())
@@ -147,17 +152,17 @@ def clips(smoothing: float) -> None:
             theta = np.array([r.params[0] for r, f in zip(results, found) if f])
             rd = []
             for q in QUALITIES:
-                bits, decoded = code(names, results, source.fps, q)
+                bits, decoded = code(stream_header(names, source.fps, q), results)
                 rd.append(f"{bits:.0f}: {fidelity(deformer, targets, decoded, names).relative:.2f}")
             f = lambda x: f"{x.relative:.2f} ({x.error:.3f})"
-            print(f"| {video.stem} | {layout} | {code(names, results, source.fps)[0]:.1f} | "
+            print(f"| {video.stem} | {layout} | {code(stream_header(names, source.fps), results)[0]:.1f} | "
                   f"{lag(theta, gap):+.2f} | {f(fidelity(deformer, targets, params, names))} | "
                   f"{f(fidelity(deformer, targets, params, names, analyser.fit.lower))} | "
                   f"{f(fidelity(deformer, targets, params, names, analyser.fit.upper_landmarks))} | "
                   f"{', '.join(rd)} |")
 
 
-def rd(smoothing: float, patterns: tuple[int, ...]) -> None:
+def rd(smoothing: float, patterns: tuple[int, ...], frames_per_packet: int, target_bits: float) -> None:
     import csv
     import dataclasses
 
@@ -169,10 +174,11 @@ def rd(smoothing: float, patterns: tuple[int, ...]) -> None:
 
     base = load_base_face()
     rows = []
-    print(f"smoothing {smoothing:g}; 2 frames per packet; second half of each clip; cells: bits/frame: "
-          "mouth-and-jaw fidelity (relative), quality 1..5")
-    print("| clip | layout | q1 | q2 | q3 | q4 | q5 |")
-    print("|---|---|---|---|---|---|---|")
+    print(f"smoothing {smoothing:g}; {frames_per_packet} frames per packet; second half of each clip; cells: "
+          f"bits/frame: mouth-and-jaw fidelity (relative), quality 1..5, then the level fd-send --bitrate "
+          f"chooses for {target_bits:g} bits/frame from the half's first second")
+    print(f"| clip | layout | q1 | q2 | q3 | q4 | q5 | at {target_bits:g} bits |")
+    print("|---|---|---|---|---|---|---|---|")
     for video, source, landmarks in dev_clips():
         half = len(landmarks) // 2
         layouts = [(name, base, name) for name in LAYOUTS]
@@ -188,12 +194,15 @@ def rd(smoothing: float, patterns: tuple[int, ...]) -> None:
             test = results[half:]
             targets = np.stack([r.target for r in test if r.target is not None])
             cells = []
-            for q in QUALITIES:
-                bits, decoded = code(analyser.names, test, source.fps, q)
+            header_at = lambda q: stream_header(analyser.names, source.fps, q)
+            sample = [(r.params, r.landmarks is not None) for r in test[:round(source.fps)]]
+            chosen = quality_for_bitrate(header_at, sample, target_bits * source.fps, frames_per_packet, DEAD_ZONE)
+            for q, target in [(q, "") for q in QUALITIES] + [(chosen, target_bits)]:
+                bits, decoded = code(header_at(q), test, frames_per_packet)
                 fid = fidelity(deformer, targets, decoded, analyser.names).relative
-                rows.append({"clip": video.stem, "layout": label, "quality": q, "bits_per_frame": round(bits, 1),
-                             "fidelity": round(fid, 4)})
-                cells.append(f"{bits:.0f}: {fid:.2f}")
+                rows.append({"clip": video.stem, "layout": label, "quality": q, "target_bits": target,
+                             "bits_per_frame": round(bits, 1), "fidelity": round(fid, 4)})
+                cells.append(f"{bits:.0f}: {fid:.2f}" + (f" (q{q})" if target else ""))
             print(f"| {video.stem} | {label} | {' | '.join(cells)} |", flush=True)
     out = ROOT / "docs" / "results" / "rd_fidelity"
     with open(out.with_suffix(".csv"), "w", newline="") as f:
@@ -204,10 +213,13 @@ def rd(smoothing: float, patterns: tuple[int, ...]) -> None:
     fig, axes = plt.subplots(2, (len(clips_seen) + 1) // 2, figsize=(12, 7), sharex=True, sharey=True)
     for ax, clip in zip(axes.ravel(), clips_seen):
         for label in dict.fromkeys(r["layout"] for r in rows):
-            pts = [(r["bits_per_frame"], r["fidelity"]) for r in rows if r["clip"] == clip and r["layout"] == label]
-            ax.plot(*zip(*pts), "o-", ms=3, label=label)
+            mine = [r for r in rows if r["clip"] == clip and r["layout"] == label]
+            line = ax.plot(*zip(*[(r["bits_per_frame"], r["fidelity"]) for r in mine if not r["target_bits"]]),
+                           "o-", ms=3, label=label)[0]
+            chosen = [(r["bits_per_frame"], r["fidelity"]) for r in mine if r["target_bits"]]
+            ax.plot(*zip(*chosen), "*", ms=9, color=line.get_color())
         ax.axhline(0.25, color="grey", lw=0.5, ls="--")
-        ax.axvline(40, color="grey", lw=0.5, ls="--")
+        ax.axvline(target_bits, color="grey", lw=0.5, ls="--")
         ax.set_title(clip, fontsize=9)
         ax.grid(alpha=0.3)
     for ax in axes[-1]:
@@ -215,7 +227,8 @@ def rd(smoothing: float, patterns: tuple[int, ...]) -> None:
     for ax in axes[:, 0]:
         ax.set_ylabel("mouth and jaw error / motion")
     axes.ravel()[0].legend(fontsize=7)
-    fig.suptitle("Held-out fidelity against rate (dashed: the issue's 0.25 at 40 bits)")
+    fig.suptitle(f"Held-out fidelity against rate, smoothing {smoothing:g}, {frames_per_packet} frames per packet "
+                 f"(stars: fd-send --bitrate's choice for {target_bits:g} bits/frame; dashed: 0.25 and {target_bits:g} bits)")
     fig.tight_layout()
     fig.savefig(out.with_suffix(".png"), dpi=90)
     print(f"wrote {out}.csv and .png")
@@ -226,13 +239,15 @@ def main() -> None:
     p.add_argument("what", choices=("speed", "clips", "rd"))
     p.add_argument("--smoothing", type=float, default=1.0)
     p.add_argument("--patterns", type=int, nargs="*", default=[8, 12], help="rd: motion basis sizes")
+    p.add_argument("--frames-per-packet", type=int, default=2, help="rd: as fd-send's option (default 2)")
+    p.add_argument("--target-bits", type=float, default=40.0, help="rd: bits per frame to aim at (default 40)")
     args = p.parse_args()
     if args.what == "speed":
         speed()
     elif args.what == "clips":
         clips(args.smoothing)
     else:
-        rd(args.smoothing, tuple(args.patterns))
+        rd(args.smoothing, tuple(args.patterns), args.frames_per_packet, args.target_bits)
 
 
 if __name__ == "__main__":
