@@ -27,17 +27,18 @@ import numpy as np
 
 from codec.deform import Deformer
 from codec.face_model import load_base_face
-from protocol.stream import (Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, quality_for_bitrate,
-                             steps_for)
+from protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, quality_for_bitrate
 from protocol.quantise import DEAD_ZONE, QUALITIES
 from sender.analysis import LAYOUTS, FaceAnalyser, Smoothing
 from sender.calibrate import lip_gap
 from sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity
 from sender.sources import VideoSource
+from sender.session import stream_header
 from sender.tracker import FaceTracker
 
 ROOT = Path(__file__).resolve().parents[1]
 DEV = ROOT.parent / "shared" / "samples" / "dev"
+FACE_ID = load_base_face().content_id
 SIZES = ((640, 480), (1280, 720))
 
 
@@ -83,12 +84,6 @@ def speed() -> None:
         track = len(frames) / track_s
         both = 1.0 / (1.0 / track + 1.0 / rates["paper"])
         print(f"| {size[0]}x{size[1]} | {track:.0f} | {rates['paper']:.0f} | {rates['full']:.0f} | {both:.0f} |")
-
-
-def stream_header(names, fps: float, quality: int = 3) -> Header:
-    """The header fd-send writes for these parameters (static flags, a keyframe a second)."""
-    return Header(fps, names, steps_for(names, quality), load_base_face().content_id, quality=quality,
-                  key_interval=round(fps), skip_static=True)
 
 
 def code(header: Header, results, frames_per_packet: int = 2) -> tuple[float, np.ndarray]:
@@ -152,10 +147,10 @@ def clips(smoothing: float) -> None:
             theta = np.array([r.params[0] for r, f in zip(results, found) if f])
             rd = []
             for q in QUALITIES:
-                bits, decoded = code(stream_header(names, source.fps, q), results)
+                bits, decoded = code(stream_header(names, source.fps, FACE_ID, q), results)
                 rd.append(f"{bits:.0f}: {fidelity(deformer, targets, decoded, names).relative:.2f}")
             f = lambda x: f"{x.relative:.2f} ({x.error:.3f})"
-            print(f"| {video.stem} | {layout} | {code(stream_header(names, source.fps), results)[0]:.1f} | "
+            print(f"| {video.stem} | {layout} | {code(stream_header(names, source.fps, FACE_ID), results)[0]:.1f} | "
                   f"{lag(theta, gap):+.2f} | {f(fidelity(deformer, targets, params, names))} | "
                   f"{f(fidelity(deformer, targets, params, names, analyser.fit.lower))} | "
                   f"{f(fidelity(deformer, targets, params, names, analyser.fit.upper_landmarks))} | "
@@ -194,7 +189,7 @@ def rd(smoothing: float, patterns: tuple[int, ...], frames_per_packet: int, targ
             test = results[half:]
             targets = np.stack([r.target for r in test if r.target is not None])
             cells = []
-            header_at = lambda q: stream_header(analyser.names, source.fps, q)
+            header_at = lambda q: stream_header(analyser.names, source.fps, FACE_ID, q)
             sample = [(r.params, r.landmarks is not None) for r in test[:round(source.fps)]]
             chosen = quality_for_bitrate(header_at, sample, target_bits * source.fps, frames_per_packet, DEAD_ZONE)
             for q, target in [(q, "") for q in QUALITIES] + [(chosen, target_bits)]:

@@ -15,6 +15,14 @@ from sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
 from sender.sources import open_source
 
 
+def stream_header(names: tuple[str, ...], fps: float, face_id: str, quality: int = DEFAULT_QUALITY,
+                  model_size: int = 0) -> Header:
+    """The header fd-send writes: a keyframe a second, and static-frame flags (with the dead zone a
+    still face sends unchanged frames, a flag each)."""
+    return Header(fps, names, steps_for(names, quality), face_id, quality=quality,
+                  key_interval=max(1, min(255, round(fps))), skip_static=True, model_size=model_size)
+
+
 class SendSession:
     """Opens the source and the models; :meth:`packets` yields the packets as frames are analysed.
 
@@ -58,11 +66,7 @@ class SendSession:
         self._started = time.perf_counter()
 
     def _header(self, quality: int) -> Header:
-        names = self.analyser.names
-        # static-frame flags: with the dead zone a still face sends unchanged frames, a flag each
-        return Header(self.source.fps, names, steps_for(names, quality), self._face_id, quality=quality,
-                      key_interval=max(1, min(255, round(self.source.fps))), skip_static=True,
-                      model_size=len(self._model))
+        return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model))
 
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)
