@@ -16,9 +16,9 @@ demo: $(STAMP)
 	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg | $(VENV)/bin/fd-recv -o out/demo.mp4
 	$(VENV)/bin/fd-enroll samples/grid_bbaf2n.mpg -o out/grid.fdface
 	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg --face out/grid.fdface | $(VENV)/bin/fd-recv -o out/demo-own-face.mp4
-	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg --face out/grid.fdface --params personal | $(VENV)/bin/fd-recv -o out/demo-personal.mp4
-	@echo "wrote out/demo.mp4 (generic shaded face), out/demo-own-face.mp4 (the speaker's own face model)"
-	@echo "and out/demo-personal.mp4 (their own face and motion basis)"
+	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg --face out/grid.fdface --params paper | $(VENV)/bin/fd-recv -o out/demo-paper.mp4
+	@echo "wrote out/demo.mp4 (generic shaded face), out/demo-own-face.mp4 (the speaker's own face model"
+	@echo "and motion basis) and out/demo-paper.mp4 (their face moved by the paper's 13 parameters only)"
 
 test: $(STAMP)
 	$(PY) -m pytest -q

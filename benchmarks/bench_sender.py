@@ -14,8 +14,8 @@ level and measures the parameters the decoder outputs.
 ``rd`` splits each clip in halves: the personal motion basis (sender/motion.py, as fd-enroll
 learns it, over the paper's fit or over the rest face) comes from the first half only, and every layout is measured on the second half (bits
 of that half coded as a stream of its own, fidelity of the decoded parameters), so the personal
-figures are what a call made after enrolment would get. It writes docs/results/rd_fidelity.csv
-and .png.
+figures are what a call made after enrolment would get. It writes
+docs/results/rd_fidelity_s{smoothing}.csv and .png.
 """
 
 import argparse
@@ -199,7 +199,7 @@ def rd(smoothing: float, patterns: tuple[int, ...], frames_per_packet: int, targ
                              "bits_per_frame": round(bits, 1), "fidelity": round(fid, 4)})
                 cells.append(f"{bits:.0f}: {fid:.2f}" + (f" (q{q})" if target else ""))
             print(f"| {video.stem} | {label} | {' | '.join(cells)} |", flush=True)
-    out = ROOT / "docs" / "results" / "rd_fidelity"
+    out = ROOT / "docs" / "results" / f"rd_fidelity_s{smoothing:g}"
     with open(out.with_suffix(".csv"), "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()

@@ -19,9 +19,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = ArgumentParser(
         prog="fd-send", epilog=EPILOG,
         description="Track a talking face and send its motion as a few numbers per frame: the jaw "
-                    "angle and the displacement of four mouth points (Akimoto, Mase and Suenaga's "
-                    "model) plus head rotation, or with --params full also brows, lids, cheeks and "
-                    "head translation.")
+                    "angle and the displacement of mouth points (Akimoto, Mase and Suenaga's model, "
+                    "with more lip points, or the person's own motion basis from fd-enroll) plus head "
+                    "rotation.")
     p.add_argument("input", nargs="?",
                    help="video file (anything OpenCV or PyAV reads), a directory of images, "
                         "or a numbered pattern such as frames/%%04d.png")
@@ -30,11 +30,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("-o", "--output", default="-", metavar="DEST",
                    help="a file, - for stdout (default), tcp://HOST:PORT (connect and write the stream) "
                         "or udp://HOST:PORT (one packet per datagram)")
-    p.add_argument("--params", choices=("paper", "full", "mouth", "personal"), default="paper",
-                   help="paper: the paper's 13 parameters and head rotation (default); "
-                        "full: plus brows, lids, cheeks and head translation; "
+    p.add_argument("--params", choices=("auto", "paper", "full", "mouth", "personal"), default="auto",
+                   help="auto (default): personal when the --face file carries a motion basis, else mouth; "
+                        "paper: the paper's 13 parameters (jaw angle, four mouth points) and head rotation; "
+                        "full: the paper's plus brows, lids, cheeks and head translation; "
                         "mouth: the paper's plus six more lip points and jaw translation; "
-                        "personal: the paper's plus the coefficients of the person's own motion basis "
+                        "personal: the coefficients of the person's own motion basis and head rotation "
                         "(needs --face from fd-enroll of a clip of them talking)")
     p.add_argument("--face", metavar="FILE.fdface",
                    help="the person's face model from fd-enroll: fitted here and carried once at the start "

@@ -38,7 +38,7 @@ class SendSession:
     """
 
     def __init__(self, source, quality: int = DEFAULT_QUALITY, frames_per_packet: int = 2,
-                 layout: str = "paper", neutral: int | None = None, smoothing: float = 1.0,
+                 layout: str = "auto", neutral: int | None = None, smoothing: float = 1.0,
                  face_file: str | None = None, embed_face: bool = True, key: bytes | None = None,
                  tag_bits: int = DEFAULT_TAG_BITS, dead_zone: float = DEAD_ZONE,
                  bitrate: float | None = None) -> None:

@@ -63,8 +63,11 @@ def test_pipe_gives_one_frame_per_input_frame_at_its_rate(tmp_path):
 
 
 def test_sender_dump_has_landmarks_pose_and_params(sent):
+    from sender.analysis import LAYOUTS
+
     _, dump = sent
     n = clip_frames()
+    assert tuple(dump["names"]) == LAYOUTS["mouth"]  # the default for a face without a motion basis
     assert dump["landmarks"].shape == (n, 468, 3)
     assert dump["found"].all()
     assert dump["params"].shape == (n, len(dump["names"]))
@@ -104,9 +107,12 @@ def test_y4m_on_stdout(sent):
 
 
 def test_truncated_stream_keeps_the_good_frames(sent, tmp_path):
+    from protocol.framing import packet_size
+
     stream, _ = sent
+    header = 1 + packet_size(stream, 1)  # sync byte and header packet
     out = tmp_path / "out.y4m"
-    result = run(RECV + ["-q", "-o", str(out), "--size", "32"], stdin=stream[: len(stream) // 2])
+    result = run(RECV + ["-q", "-o", str(out), "--size", "32"], stdin=stream[: (header + len(stream)) // 2])
     assert_one_line_error(result, "fd-recv")
     assert "truncated" in result.stderr.decode()
     _, count = parse_y4m(out.read_bytes())
