@@ -1,14 +1,14 @@
 """Bits per frame of the stream format on parameter dumps, with the error of what the decoder outputs beside each.
 
-Dumps come from ``python -m sender.cli CLIP -o /dev/null --dump DUMP.npz [--params full]``
+Dumps come from ``python -m sender.cli CLIP -o /dev/null --dump DUMP.npz --params paper|mouth|full``
 (unquantised parameters: the sender's only hold is the encoder's dead zone).
 Prints a Markdown table: clip, layout, quality, dead zone, bits per frame
 (entropy-coded payload, framing, total), bit/s at the clip's frame rate, the
 largest and rms vertex error of every decoded frame (interpolated ones too)
 against the unquantised parameters of that frame (pixels for a face 380 px
 tall: a 512x512 receiver view; head pose included), largest angle error, encode
-and decode frames per second. A paper dump gives two layouts: the paper's 13
-parameters, and with head rotation (what fd-send sends).
+and decode frames per second. A ``--params paper`` dump gives two layouts: the
+paper's 13 parameters, and with head rotation (what fd-send sends).
 """
 
 import argparse
@@ -22,6 +22,7 @@ from codec.face_model import load_base_face
 from protocol.framing import packet_size
 from protocol.quantise import QUALITIES
 from protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, steps_for
+from sender.analysis import LAYOUTS
 
 FACE_PX = 512 / 1.35  # receiver framing: the view is 1.35 face heights tall
 ANGLES = ("theta", "rx", "ry", "rz")
@@ -76,7 +77,8 @@ def bench(path: Path, layout: tuple[str, ...], quality: int, dead_zone: float, a
     err *= FACE_PX
     angle = [layout.index(a) for a in ANGLES if a in layout]
     angle_err = np.abs(params[:, angle] - got[:, angle]).max()
-    name = {len(PAPER_PARAMS): "paper", len(PAPER_PARAMS) + 3: "paper+rotation"}.get(len(layout), "full")
+    name = "paper+rotation" if layout == LAYOUTS["paper"] else next(
+        (k for k, v in LAYOUTS.items() if v == layout), "paper" if layout == PAPER_PARAMS else "other")
     return (f"| {path.stem} | {name} | {quality} | {dead_zone:g} | {payload:.1f} | {total - payload:.1f} | "
             f"{total:.1f} | {total * fps:.0f} | {err.max():.2f} | {np.sqrt((err ** 2).mean()):.2f} | "
             f"{angle_err:.3f} | {n / encode_s:.0f} | {n / decode_s:.0f} |")
@@ -100,7 +102,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for path in args.dumps:
         names = tuple(str(n) for n in np.load(path)["names"])
-        layouts = [names] if len(names) > len(PAPER_PARAMS) + 3 else [PAPER_PARAMS, names]
+        layouts = [PAPER_PARAMS, names] if names == LAYOUTS["paper"] else [names]
         for layout in layouts:
             for quality in args.qualities:
                 for dead_zone in args.dead_zones:
