@@ -31,10 +31,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="face-crop sizes (default 256)")
     p.add_argument("--qualities", type=int, nargs="+", default=[1, 2, 3, 4, 5], choices=range(1, 6),
                    metavar="Q", help="our quality levels (default 1 2 3 4 5)")
-    p.add_argument("--layouts", nargs="+", default=["paper", "full", "personal"],
+    p.add_argument("--layouts", nargs="+", default=["paper", "mouth", "full", "personal"],
                    choices=("paper", "full", "mouth", "personal"),
-                   help="our parameter sets (default paper full personal); personal runs with the own face "
-                        "only, its motion basis learned from the first half of the clip")
+                   help="our parameter sets (default paper mouth full personal: mouth and personal are "
+                        "fd-send's defaults without and with a motion basis); personal runs with the own "
+                        "face only, its motion basis learned from the first half of the clip")
     p.add_argument("--faces", nargs="+", default=["generic", "own"], choices=("generic", "own"),
                    help="our receiver's face: the generic shaded one, and/or the speaker's own model made "
                         "by fd-enroll from the clip (default both)")
