@@ -4,9 +4,11 @@ import numpy as np
 import pytest
 
 from codec.camera import Camera
-from codec.face_parts import IRIS_SCALE, eye_components, eye_discs, eye_pieces
+from codec import raster
+from codec.face_parts import (IRIS_SCALE, LIPS_GAP, TEETH_BAND, TEETH_SHARE, eye_components, eye_discs,
+                              eye_pieces, teeth_columns)
+from codec.raster import MOUTH_DARK, PUPIL, SCLERA
 from codec.render import DirectionalLight, Material, Renderer, linear_to_srgb, srgb_to_linear
-from codec.shade import MOUTH_DARK, PUPIL, SCLERA
 
 FLAT = Material(albedo=(1.0, 1.0, 1.0), ambient=1.0, specular=0.0)  # output = albedo/texture
 
@@ -306,6 +308,45 @@ def test_eye_discs_match_reference(irises):
     eyes = eye_components(faces, face.eye_faces)
     got = eye_discs(verts, faces, *eye_pieces(faces, eyes), irises)
     np.testing.assert_allclose(got, reference_eye_discs(verts, faces, eyes, irises), atol=1e-12)
+
+
+def reference_teeth_columns(screen, mouth_vertices, width):
+    """teeth_columns written plainly in numpy: lips split by the corner line, interpolated per column."""
+    out = np.zeros((3, width), np.float32)
+    xs, ys = screen[mouth_vertices, 0], screen[mouth_vertices, 1]
+    left, right = np.argmin(xs), np.argmax(xs)
+    span = xs[right] - xs[left]
+    line = ys[left] + (xs - xs[left]) * (ys[right] - ys[left]) / span
+    cols = np.arange(width) + 0.5
+    top, bottom = (np.interp(cols, np.sort(xs[side]), ys[side][np.argsort(xs[side])])
+                   for side in (ys <= line, ys >= line))
+    out[0] = top
+    out[1] = np.minimum(TEETH_BAND, TEETH_SHARE * np.maximum((bottom - top) / span - LIPS_GAP, 0.0)) * span
+    out[2] = np.clip(1.0 - 0.6 * ((cols - 0.5 * (xs[left] + xs[right])) / (0.5 * span)) ** 2, 0.0, 1.0)
+    return out
+
+
+@pytest.mark.parametrize("opening", [0.0, 8.0])
+def test_teeth_columns_match_reference(opening):
+    from codec.deform import Deformer
+    from codec.face_model import load_base_face
+
+    face = load_base_face()
+    params = np.zeros(13)
+    params[0] = opening  # the jaw's angle
+    verts = Deformer(face).deform(params)
+    screen = Camera.perspective(20.0, eye=(0, 0, 4.4), target=(0, 0, 0)).project(verts, (512, 512))
+    mouth = np.unique(face.faces[face.mouth_faces])
+    np.testing.assert_array_equal(teeth_columns(screen, mouth, 512),
+                                  reference_teeth_columns(screen, mouth, 512))
+
+
+def test_raster_compiles_nothing_from_other_modules():
+    """numba's disk cache of draw is invalidated only when raster.py changes: all it inlines lives there."""
+    import inspect
+
+    source = inspect.getsource(raster)
+    assert "from ." not in source and "import codec" not in source
 
 
 def test_camera_basis_is_a_copy_of_fixed_axes():
