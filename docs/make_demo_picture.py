@@ -1,5 +1,5 @@
 """docs/demo.png: frames of the bundled clip beside what the receiver renders from the stream,
-with the generic shaded face and with the person's own face model (fd-enroll).
+with the generic shaded face and with the person's own face model and motion basis (fd-enroll).
 
 Run from the repository: .venv/bin/python docs/make_demo_picture.py
 """

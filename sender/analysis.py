@@ -37,8 +37,8 @@ LAYOUT_NAMES = (*LAYOUTS, "personal", "auto")
 
 def resolve_layout(layout: str, face: BaseFace) -> str:
     """``layout``, or for "auto" "personal" when ``face`` has a motion basis and "mouth" when not:
-    on the dev clips each is closer to the tracked mouth at fewer bits than the paper's set at the
-    default level (README, held-out fidelity), which stays available by name."""
+    from level 2 on, each is closer to the tracked mouth on every dev clip than the paper's set at
+    any level (README, fidelity tables); the paper's set stays available by name."""
     if layout != "auto":
         return layout
     return "mouth" if face.motion is None else "personal"
