@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
+from codec.deform import PAPER_PARAMS, Deformer, extended_params
 from codec.face_model import load_base_face
 from protocol.framing import packet_size
 from protocol.quantise import QUALITIES
@@ -26,6 +26,10 @@ from sender.analysis import LAYOUTS
 
 FACE_PX = 512 / 1.35  # receiver framing: the view is 1.35 face heights tall
 ANGLES = ("theta", "rx", "ry", "rz")
+#: Table labels by layout: fd-send's, with "paper" for the paper's 13 alone and "paper+rotation" for what
+#: --params paper sends.
+LABELS = {**{names: name for name, names in LAYOUTS.items()}, PAPER_PARAMS: "paper",
+          LAYOUTS["paper"]: "paper+rotation"}
 
 
 def payload_bits(packets: list[bytes]) -> int:
@@ -41,9 +45,7 @@ def payload_bits(packets: list[bytes]) -> int:
 
 def vertices(deformer: Deformer, layout: tuple[str, ...], params: np.ndarray) -> np.ndarray:
     """(n, 468, 3) meshes the receiver draws for (n, k) parameters of ``layout``."""
-    full = np.zeros((len(params), len(EXTENDED_PARAMS)))
-    full[:, [EXTENDED_PARAMS.index(n) for n in layout]] = params
-    return np.array([deformer.deform_extended(p) for p in full])
+    return np.array([deformer.deform_extended(p) for p in extended_params(layout, params)])
 
 
 def bench(path: Path, layout: tuple[str, ...], quality: int, dead_zone: float, args, deformer: Deformer) -> str:
@@ -77,8 +79,7 @@ def bench(path: Path, layout: tuple[str, ...], quality: int, dead_zone: float, a
     err *= FACE_PX
     angle = [layout.index(a) for a in ANGLES if a in layout]
     angle_err = np.abs(params[:, angle] - got[:, angle]).max()
-    name = "paper+rotation" if layout == LAYOUTS["paper"] else next(
-        (k for k, v in LAYOUTS.items() if v == layout), "paper" if layout == PAPER_PARAMS else "other")
+    name = LABELS.get(layout, "other")
     return (f"| {path.stem} | {name} | {quality} | {dead_zone:g} | {payload:.1f} | {total - payload:.1f} | "
             f"{total:.1f} | {total * fps:.0f} | {err.max():.2f} | {np.sqrt((err ** 2).mean()):.2f} | "
             f"{angle_err:.3f} | {n / encode_s:.0f} | {n / decode_s:.0f} |")

@@ -45,6 +45,15 @@ _MOUTH = slice(_SHIFT.stop, _SHIFT.stop + len(MOUTH_PARAMS))
 _BASIS = slice(_MOUTH.stop, _MOUTH.stop + MAX_COMPONENTS)
 
 
+def extended_params(names, params: np.ndarray) -> np.ndarray:
+    """(..., len(EXTENDED_PARAMS)) float64: ``params`` (..., k) of the layout ``names`` in their
+    EXTENDED_PARAMS slots, zero elsewhere (the form :meth:`Deformer.deform_extended` takes)."""
+    params = np.asarray(params, dtype=np.float64)
+    full = np.zeros(params.shape[:-1] + (len(EXTENDED_PARAMS),))
+    full[..., [EXTENDED_PARAMS.index(n) for n in names]] = params
+    return full
+
+
 def rotation_matrix(axis: np.ndarray, theta_deg: float) -> np.ndarray:
     """(3, 3) right-handed rotation by theta_deg about the unit vector axis (Rodrigues)."""
     t = np.radians(theta_deg)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codec.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer
+from codec.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer, extended_params
 from sender.calibrate import inter_ocular
 
 _OUTER_LIPS = (61, 146, 91, 181, 84, 17, 314, 405, 321, 375,
@@ -39,9 +39,7 @@ def fidelity(deformer: Deformer, targets: np.ndarray, params: np.ndarray, names,
     """targets (n, 468, 3) observed pose-free faces; params (n, k) in the layout ``names`` (any
     subset of EXTENDED_PARAMS; the head pose is ignored); landmarks: the vertex indices compared."""
     base = deformer.face.vertices
-    slots = [EXTENDED_PARAMS.index(n) for n in names]
-    full = np.zeros((len(params), len(EXTENDED_PARAMS)))
-    full[:, slots] = params
+    full = extended_params(names, params)
     full[:, [EXTENDED_PARAMS.index(n) for n in POSE_PARAMS]] = 0.0  # pose-free: compare shapes
     idx = np.asarray(landmarks)
     model = np.stack([deformer.deform_extended(p)[idx] for p in full])
