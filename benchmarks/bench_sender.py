@@ -3,6 +3,7 @@
     python benchmarks/bench_sender.py speed      # frames/s: tracking, estimation (pose + fit), both
     python benchmarks/bench_sender.py clips      # bits/frame and geometry fidelity per dev clip and layout
     python benchmarks/bench_sender.py rd         # held-out fidelity against bits/frame, with the personal basis
+    python benchmarks/bench_sender.py smoothing  # One Euro settings: a noisy still face against talking
 
 Speed uses the bundled clip scaled to each height and padded to each width. The clip table uses the
 dev clips in ../shared/samples/dev; fidelity is ``sender.fidelity`` (rms error over rms motion
@@ -19,7 +20,9 @@ docs/results/rd_fidelity_s{smoothing}.csv and .png.
 """
 
 import argparse
+import dataclasses
 import time
+from datetime import date
 from pathlib import Path
 
 import cv2
@@ -34,6 +37,7 @@ from sender.calibrate import lip_gap
 from sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity
 from sender.sources import VideoSource
 from sender.session import stream_header
+from sender.enroll import MOTION_PATTERNS
 from sender.tracker import FaceTracker
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -112,9 +116,9 @@ def lag(params: np.ndarray, gap: np.ndarray, span: int = 5) -> float:
     return i - span + shift
 
 
-def analyse(face, landmarks: list, fps: float, layout: str, smoothing: float):
+def analyse(face, landmarks: list, fps: float, layout: str, smoothing: Smoothing):
     """(analyser, all FrameAnalysis, (n, 468, 3) targets and (n, k) params of the frames with a face)."""
-    analyser = FaceAnalyser(Replay(), face, fps, layout, round(fps), smoothing=Smoothing(smoothing))
+    analyser = FaceAnalyser(Replay(), face, fps, layout, round(fps), smoothing=smoothing)
     results = list(analyser.run(landmarks))
     seen = [r for r in results if r.target is not None]
     return analyser, results, np.stack([r.target for r in seen]), np.stack([r.params for r in seen])
@@ -143,7 +147,7 @@ def clips(smoothing: float) -> None:
         found = [lm is not None for lm in landmarks]
         gap = np.array([lip_gap(lm) for lm in landmarks if lm is not None])
         for layout in LAYOUTS:
-            analyser, results, targets, params = analyse(face, landmarks, source.fps, layout, smoothing)
+            analyser, results, targets, params = analyse(face, landmarks, source.fps, layout, Smoothing(smoothing))
             names = analyser.names
             theta = np.array([r.params[0] for r, f in zip(results, found) if f])
             rd = []
@@ -158,15 +162,22 @@ def clips(smoothing: float) -> None:
                   f"{', '.join(rd)} |")
 
 
+def half_taught(base, landmarks: list, fps: float, patterns: int, over: str = "rest"):
+    """``base`` with the motion basis fd-enroll would learn from the first half of ``landmarks``
+    (None if the half teaches no pattern): what a call after enrolment has."""
+    from sender.motion import learn_motion, residuals
+
+    residual, vertices = residuals(landmarks[:len(landmarks) // 2], Replay(), base, fps, over)
+    basis = learn_motion(residual, vertices, patterns, over)
+    return None if basis is None else dataclasses.replace(base, motion=basis)
+
+
 def rd(smoothing: float, patterns: tuple[int, ...], frames_per_packet: int, target_bits: float) -> None:
     import csv
-    import dataclasses
 
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from sender.motion import learn_motion, residuals
 
     base = load_base_face()
     rows = []
@@ -179,14 +190,13 @@ def rd(smoothing: float, patterns: tuple[int, ...], frames_per_packet: int, targ
         half = len(landmarks) // 2
         layouts = [(name, base, name) for name in LAYOUTS]
         for over in ("paper", "rest"):
-            residual, vertices = residuals(landmarks[:half], Replay(), base, source.fps, over)
             for m in patterns:
-                basis = learn_motion(residual, vertices, m, over)
-                if basis is not None:
-                    layouts.append(("personal", dataclasses.replace(base, motion=basis), f"personal {m}/{over}"))
+                face = half_taught(base, landmarks, source.fps, m, over)
+                if face is not None:
+                    layouts.append(("personal", face, f"personal {m}/{over}"))
         for layout, face, label in layouts:
             deformer = Deformer(face)
-            analyser, results, _, _ = analyse(face, landmarks, source.fps, layout, smoothing)
+            analyser, results, _, _ = analyse(face, landmarks, source.fps, layout, Smoothing(smoothing))
             test = results[half:]
             targets = np.stack([r.target for r in test if r.target is not None])
             cells = []
@@ -230,9 +240,51 @@ def rd(smoothing: float, patterns: tuple[int, ...], frames_per_packet: int, targ
     print(f"wrote {out}.csv and .png")
 
 
+#: The One Euro settings the smoothing table compares.
+SMOOTHINGS = (("off (--smoothing 0)", Smoothing(0.0)), ("speed gain 0.05", Smoothing(beta=0.05)),
+              ("speed gain 0.3 (default)", Smoothing()), ("speed gain 1", Smoothing(beta=1.0)))
+NOISE = (3.0, 5.0)  # grey levels of Gaussian camera noise on the still face
+
+
+def smoothing_table() -> None:
+    """A still face (the bundled clip's first frame repeated with camera noise, fd-send's defaults):
+    the share of frames in which the receiver's picture changes, and bits per frame; talking (the
+    dev clips' second halves, personal basis from the first, level 2, 4 frames per packet): the mouth
+    and jaw's relative error and bits per frame, means over the clips."""
+    base = load_base_face()
+    frame = next(VideoSource(ROOT / "samples" / "grid_bbaf2n.mpg").frames())
+    rng = np.random.default_rng(0)
+    still = {}
+    for sigma in NOISE:
+        tracker = FaceTracker()
+        still[sigma] = [tracker.track(np.clip(frame + rng.normal(0, sigma, frame.shape), 0, 255).astype(np.uint8))
+                        for _ in range(100)]
+    talking = [(source.fps, landmarks, half_taught(base, landmarks, source.fps, MOTION_PATTERNS))
+               for _, source, landmarks in dev_clips()]
+    print(f"{date.today()}; still: frames that change / bits per frame at each noise; talking: error / bits")
+    print("| One Euro setting | " + " | ".join(f"still face, noise σ {s:g}" for s in NOISE) + " | talking |")
+    print("|---|" + "---|" * (len(NOISE) + 1))
+    for label, smoothing in SMOOTHINGS:
+        cells = []
+        for landmarks in still.values():
+            analyser, results, _, _ = analyse(base, landmarks, 25.0, "auto", smoothing)
+            bits, shown = code(stream_header(analyser.names, 25.0, FACE_ID), results[25:])
+            cells.append(f"{np.mean(np.any(np.diff(shown, axis=0) != 0, axis=1)):.0%} / {bits:.1f}")
+        errors, rates = [], []
+        for fps, landmarks, face in talking:
+            analyser, results, _, _ = analyse(face, landmarks, fps, "personal", smoothing)
+            test = results[len(landmarks) // 2:]
+            bits, decoded = code(stream_header(analyser.names, fps, FACE_ID, 2), test, 4)
+            targets = np.stack([r.target for r in test if r.target is not None])
+            errors.append(fidelity(Deformer(face), targets, decoded, analyser.names).relative)
+            rates.append(bits)
+        cells.append(f"{np.mean(errors):.2f} / {np.mean(rates):.1f}")
+        print(f"| {label} | {' | '.join(cells)} |", flush=True)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("what", choices=("speed", "clips", "rd"))
+    p.add_argument("what", choices=("speed", "clips", "rd", "smoothing"))
     p.add_argument("--smoothing", type=float, default=1.0)
     p.add_argument("--patterns", type=int, nargs="*", default=[8, 12], help="rd: motion basis sizes")
     p.add_argument("--frames-per-packet", type=int, default=2, help="rd: as fd-send's option (default 2)")
@@ -242,6 +294,8 @@ def main() -> None:
         speed()
     elif args.what == "clips":
         clips(args.smoothing)
+    elif args.what == "smoothing":
+        smoothing_table()
     else:
         rd(args.smoothing, tuple(args.patterns), args.frames_per_packet, args.target_bits)
 

@@ -224,5 +224,12 @@ def test_bitrate_picks_a_quality_level():
     assert stats[0]["bits_per_frame"] < stats[1]["bits_per_frame"]
 
 
+@pytest.mark.parametrize("option", [["--dead-zone", "9"], ["--dead-zone", "0.1"], ["--bitrate", "0"]])
+def test_out_of_range_rate_options_are_refused(option):
+    result = run(SEND + [str(CLIP), "-o", "/dev/null", *option])
+    assert_one_line_error(result, "fd-send")
+    assert option[0].strip("-").replace("-", " ") in result.stderr.decode()
+
+
 def test_bitrate_and_quality_exclude_each_other():
     assert_one_line_error(run(SEND + [str(CLIP), "--bitrate", "1", "--quality", "2"]), "fd-send")
