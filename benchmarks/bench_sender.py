@@ -21,6 +21,7 @@ docs/results/rd_fidelity_s{smoothing}.csv and .png.
 
 import argparse
 import dataclasses
+import sys
 import time
 from datetime import date
 from pathlib import Path
@@ -125,8 +126,12 @@ def analyse(face, landmarks: list, fps: float, layout: str, smoothing: Smoothing
 
 
 def dev_clips():
-    """(video path, its VideoSource, tracked landmarks per frame) for each dev clip."""
-    for path in sorted(DEV.glob("*.landmarks.npz")):
+    """(video path, its VideoSource, tracked landmarks per frame) for each dev clip; exits without them,
+    before any result file is opened."""
+    paths = sorted(DEV.glob("*.landmarks.npz"))
+    if not paths:
+        sys.exit(f"bench_sender: no dev clips in {DEV} (the shared data sits beside the repository)")
+    for path in paths:
         video = next(p for p in DEV.glob(path.name.replace(".landmarks.npz", ".*")) if p != path)
         source = VideoSource(video)
         tracker = FaceTracker()

@@ -13,7 +13,7 @@ from codec.errors import BitstreamError
 from protocol.arith import Decoder
 from protocol.entropy import GroupState
 from protocol.events import Damage, End, Frame, Model, Stats
-from protocol.framing import DELTA, END, HEADER, KEY, MODEL, SYNC, packet_size, parse, read_varint
+from protocol.framing import DELTA, END, HEADER, KEY, MODEL, SYNC, is_short, packet_size, parse, read_varint
 from protocol.header import Header, parse_header
 from protocol.quantise import dequantise
 
@@ -221,7 +221,7 @@ class ByteStreamDecoder(WrapsPacketDecoder):
     def _scan(self, final: bool) -> list:
         events, buf, pos = [], self._buf, 0
         while pos < len(buf):
-            if buf[pos] != SYNC:
+            if not self._starts_packet(pos):
                 start = pos
                 pos = buf.find(SYNC, pos)
                 pos = len(buf) if pos < 0 else pos
@@ -236,8 +236,11 @@ class ByteStreamDecoder(WrapsPacketDecoder):
         del buf[:pos]
         return events
 
+    def _starts_packet(self, pos: int) -> bool:
+        return self._buf[pos] == SYNC
+
     def _packet_at(self, pos: int, final: bool) -> tuple[list, int] | None:
-        """Events of the packet whose sync byte is at ``pos`` and the bytes used; None to wait for more."""
+        """Events of the packet that starts at ``pos`` (with its sync byte) and the bytes used; None to wait for more."""
         raise NotImplementedError
 
     def _no_stream(self) -> str:
@@ -245,25 +248,39 @@ class ByteStreamDecoder(WrapsPacketDecoder):
 
 
 class StreamDecoder(ByteStreamDecoder):
-    """The clear format's byte-stream decoder."""
+    """The clear format's byte-stream decoder.
+
+    A short delta has no sync byte: it is read only where the packet before it
+    ended, never while looking for sync.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._synced = False  # the buffer starts where the last accepted packet ended
+
+    def _starts_packet(self, pos: int) -> bool:
+        return self._buf[pos] == SYNC or (self._synced and is_short(self._buf[pos]))
 
     def _no_stream(self) -> str:
         return "empty input: no fd stream" if not self._seen else "input is not an fd stream (no valid header)"
 
     def _packet_at(self, pos: int, final: bool) -> tuple[list, int] | None:
         buf = self._buf
+        start = pos + (buf[pos] == SYNC)
         try:
-            size = packet_size(buf, pos + 1)
+            size = packet_size(buf, start)
         except BitstreamError:
             size = 0
-        if not final and (size is None or pos + 1 + size > len(buf)):
+        if not final and (size is None or start + size > len(buf)):
             return None
-        got = self._core.accept(buf[pos + 1:pos + 1 + size]) if size else None
+        got = self._core.accept(buf[start:start + size]) if size else None
         if got is None:
             return self._skip(1, "packet fails its check or cannot be decoded"), 1
-        return got, 1 + size
+        self._synced = True
+        return got, start - pos + size
 
     def _skip(self, n: int, reason: str) -> list:
+        self._synced = False
         self._core.stats.skipped_bytes += n
         if self._core.header is None:
             if self._core.stats.skipped_bytes > MAX_SEEK:

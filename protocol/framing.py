@@ -1,14 +1,20 @@
 """Packets and their framing: type, length, check, and a sync byte for byte streams.
 
-A packet is ``type-and-count byte | length varint | body | check``. The check is
+A packet is ``type-and-count byte | length varint | body | check``, except a
+short delta: one byte for frame count and length, then ``body | check``. Deltas
+are nearly every packet, and at 2-4 frames per packet their framing was a
+quarter of the stream; a short delta is sent without a sync byte, so it costs 16
+bits instead of 32. The check is
 as wide as what it guards is worth: CRC-32 for the header and model chunks, CRC-16
 for keyframes and the end mark, CRC-8 for delta packets. A delta packet's CRC also
 covers the number of its first frame, which is not sent: a delta is accepted
 only by a decoder that holds exactly the frames it was predicted from, so a lost
 or repeated packet is caught without spending bits on a sequence number.
 
-On a byte stream (pipe, file, TCP) each packet is preceded by :data:`SYNC`; a
-datagram carries one packet without it.
+On a byte stream (pipe, file, TCP) each packet but a short delta is preceded by
+:data:`SYNC`; a datagram carries one packet without it. A decoder that lost
+sync finds it again at a sync byte, and only a keyframe restarts decoding
+there, so short deltas need none.
 """
 
 import binascii
@@ -23,6 +29,8 @@ TYPE_NAMES = ("header", "model", "key", "delta", "end")
 MAX_BODY = 4096  # longer than any valid packet: header with 64 names, 1 KiB model chunk, 32 keyframe frames
 MAX_COUNT = 32  # frames per packet (5 bits)
 _CHECK = {HEADER: 4, MODEL: 4, KEY: 2, DELTA: 1, END: 2}
+SHORT = 0xA0  # first byte of a short delta: SHORT + SHORT_LENGTHS * (count - 1) + body length
+SHORT_COUNT, SHORT_LENGTHS = 2, 46  # 1-2 frames (fd-send sends 2), bodies of 0-45 bytes: codes 0xA0-0xFB, never SYNC
 
 
 def _crc8_table() -> list[int]:
@@ -83,11 +91,39 @@ class Packet:
 
 
 def build(kind: int, body: bytes, count: int = 0, first_frame: int = 0) -> bytes:
-    """One packet's bytes (no sync byte); ``first_frame`` enters a delta packet's CRC only."""
+    """One packet's bytes (no sync byte), a short delta where one fits; ``first_frame`` enters a
+    delta packet's CRC only."""
     if not 0 <= count <= MAX_COUNT or len(body) > MAX_BODY:
         raise BitstreamError(f"packet too large ({count} frames, {len(body)} bytes)")
-    data = bytes([kind << 5 | (count - 1 if count else 0)]) + varint(len(body)) + body
+    if kind == DELTA and count <= SHORT_COUNT and len(body) < SHORT_LENGTHS:
+        data = bytes([SHORT + SHORT_LENGTHS * (count - 1) + len(body)]) + body
+    else:
+        data = bytes([kind << 5 | (count - 1 if count else 0)]) + varint(len(body)) + body
     return data + _check(kind, data, first_frame)
+
+
+def is_short(first: int) -> bool:
+    """Whether a packet starting with byte ``first`` is a short delta (which has no sync byte before it)."""
+    return SHORT <= first < SHORT + SHORT_COUNT * SHORT_LENGTHS
+
+
+def _layout(data: bytes, pos: int) -> tuple[int, int, int, int] | None:
+    """(kind, frame count, body start, body length) of the packet at ``data[pos]``, None if more
+    bytes are needed to tell; BitstreamError when the first bytes cannot start a packet."""
+    if pos >= len(data):
+        return None
+    first = data[pos]
+    if is_short(first):
+        count, n = divmod(first - SHORT, SHORT_LENGTHS)
+        return DELTA, count + 1, pos + 1, n
+    kind = first >> 5
+    if kind not in _CHECK:
+        raise BitstreamError(f"unknown packet type {kind}")
+    length = read_varint(data, pos + 1, MAX_BODY)
+    if length is None:
+        return None
+    n, body_start = length
+    return kind, (first & 0x1F) + 1 if kind in (KEY, DELTA) else 0, body_start, n
 
 
 def packet_size(data: bytes, pos: int) -> int | None:
@@ -95,16 +131,16 @@ def packet_size(data: bytes, pos: int) -> int | None:
 
     Raises BitstreamError when the first bytes cannot start a packet.
     """
-    if pos >= len(data):
+    layout = _layout(data, pos)
+    if layout is None:
         return None
-    kind = data[pos] >> 5
-    if kind not in _CHECK:
-        raise BitstreamError(f"unknown packet type {kind}")
-    length = read_varint(data, pos + 1, MAX_BODY)
-    if length is None:
-        return None
-    n, body_start = length
+    kind, _, body_start, n = layout
     return body_start - pos + n + _CHECK[kind]
+
+
+def body_bits(data: bytes) -> int:
+    """Bits of a whole packet's body (no sync byte): what the packet carries apart from its framing."""
+    return 8 * _layout(data, 0)[3]
 
 
 def parse(data: bytes, expected_frame: int) -> Packet:
@@ -112,10 +148,8 @@ def parse(data: bytes, expected_frame: int) -> Packet:
     size = packet_size(data, 0)
     if size is None or size != len(data):
         raise BitstreamError("packet length does not match its length field")
-    kind = data[0] >> 5
+    kind, count, body_start, _ = _layout(data, 0)
     width = _CHECK[kind]
     if _check(kind, data[:-width], expected_frame) != data[-width:]:
         raise BitstreamError(f"{TYPE_NAMES[kind]} packet fails its check")
-    body_start = read_varint(data, 1, MAX_BODY)[1]
-    count = (data[0] & 0x1F) + 1 if kind in (KEY, DELTA) else 0
     return Packet(kind, count, bytes(data[body_start:-width]))

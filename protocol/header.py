@@ -13,7 +13,8 @@ from codec.errors import BitstreamError
 from protocol.framing import read_varint, varint
 
 MAGIC = b"FD"
-VERSION = 2
+VERSION = 3
+READABLE = (2, 3)  # version 2 differs only in having no short deltas
 MAX_NAMES = 64
 MAX_NAME = 32
 MAX_MODEL = 16 << 20  # bytes of pre-shared face model carried in-band
@@ -82,8 +83,9 @@ def parse_header(body: bytes) -> Header:
     """Header from a checked header packet's body; BitstreamError if it is not one we can read."""
     if len(body) < 8 or body[:2] != MAGIC:
         raise BitstreamError("input is not an fd stream (no fd header)")
-    if body[2] != VERSION:
-        raise BitstreamError(f"unsupported stream version {body[2]} (this decoder reads {VERSION})")
+    if body[2] not in READABLE:
+        raise BitstreamError(f"unsupported stream version {body[2]} (this decoder reads "
+                             f"{', '.join(map(str, READABLE))})")
     flags, quality, key_interval, divisor = body[3:7]
     fps_milli, pos = _varint(body, 7, 1_000_000)
     if pos + 32 > len(body):

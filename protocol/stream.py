@@ -1,4 +1,4 @@
-"""Stream format version 2: the public API in one import.
+"""Stream format version 3: the public API in one import.
 
 No I/O here: encoders return bytes or packets, decoders take bytes in any
 chunking (byte streams) or one packet at a time (datagrams) and return events.

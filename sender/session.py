@@ -65,6 +65,11 @@ class SendSession:
         self._ended = False
         self._started = time.perf_counter()
 
+    @property
+    def sealed(self) -> bool:
+        """Packets are sealed (opaque): on a byte stream each needs its sync byte."""
+        return self.sealer is not None
+
     def _header(self, quality: int) -> Header:
         return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model))
 
@@ -87,11 +92,11 @@ class SendSession:
                 header = self._seal(self.encoder.header())
                 if self.sealer is not None:
                     header.insert(0, self.sealer.preamble())
-                self.header_bytes = len(frame_bytes(header))
+                self.header_bytes = len(frame_bytes(header, self.sealed))
                 yield header
             self.frames.append(result)
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
-            self.stream_bytes += len(frame_bytes(packets))
+            self.stream_bytes += len(frame_bytes(packets, self.sealed))
             if packets:
                 yield packets
         yield self.end()
@@ -102,7 +107,7 @@ class SendSession:
             return []
         self._ended = True
         packets = self._seal(self.encoder.end())
-        self.stream_bytes += len(frame_bytes(packets))
+        self.stream_bytes += len(frame_bytes(packets, self.sealed))
         return packets
 
     def _seal(self, packets: list[bytes]) -> list[bytes]:
@@ -112,7 +117,7 @@ class SendSession:
         """The same as a byte stream."""
         for packets in self.packets():
             if packets:
-                yield frame_bytes(packets)
+                yield frame_bytes(packets, self.sealed)
 
     def stats(self) -> dict:
         """Frames, frames without a face, bits per frame, bit rate, processing speed, rest frame."""

@@ -16,14 +16,14 @@ CONNECT_TIMEOUT = 5.0  # seconds
 
 
 class ByteSink:
-    """A binary file-like object (a file, stdout, a TCP socket's file)."""
+    """A binary file-like object (a file, stdout, a TCP socket's file); ``sealed``: the packets are."""
 
-    def __init__(self, out, closes: bool = True) -> None:
-        self._out, self._closes = out, closes
+    def __init__(self, out, closes: bool = True, sealed: bool = False) -> None:
+        self._out, self._closes, self._sealed = out, closes, sealed
 
     def write(self, packets: list[bytes]) -> None:
         if packets:
-            self._out.write(frame_bytes(packets))
+            self._out.write(frame_bytes(packets, self._sealed))
             self._out.flush()
 
     def close(self) -> None:
@@ -61,12 +61,12 @@ def _address(url: str) -> tuple[str, int]:
     return parts.hostname, port
 
 
-def open_sink(output: str):
-    """``-`` (stdout), ``udp://HOST:PORT``, ``tcp://HOST:PORT`` or a file path."""
+def open_sink(output: str, sealed: bool = False):
+    """``-`` (stdout), ``udp://HOST:PORT``, ``tcp://HOST:PORT`` or a file path; ``sealed``: the packets are."""
     if output == "-":
         if sys.stdout.isatty():
             raise InputError("refusing to write a binary stream to a terminal: pipe it (| fd-recv) or use -o FILE")
-        return ByteSink(sys.stdout.buffer, closes=False)
+        return ByteSink(sys.stdout.buffer, closes=False, sealed=sealed)
     if output.startswith("udp://"):
         return DatagramSink(_address(output))
     if output.startswith("tcp://"):
@@ -78,8 +78,8 @@ def open_sink(output: str):
         sock.settimeout(None)
         out = sock.makefile("wb")
         sock.close()  # the connection lives on in ``out`` until it is closed
-        return ByteSink(out)
+        return ByteSink(out, sealed=sealed)
     try:
-        return ByteSink(open(output, "wb"))
+        return ByteSink(open(output, "wb"), sealed=sealed)
     except OSError as exc:
         raise InputError(f"{output}: cannot write ({exc.strerror})") from None

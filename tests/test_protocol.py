@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from codec.deform import PAPER_PARAMS
 from codec.errors import BitstreamError
-from protocol.framing import DELTA, HEADER, build
+from protocol.framing import DELTA, HEADER, SHORT, SHORT_LENGTHS, build, is_short
 from protocol.header import MAX_MODEL, encode_header
 from protocol.quantise import QUALITIES, dequantise, hold_or_round, quantise
 from protocol.stream import (Damage, DatagramDecoder, End, Frame, Header, Model, PacketEncoder, StreamDecoder,
@@ -150,16 +150,46 @@ def test_byte_by_byte_equals_whole():
         np.testing.assert_array_equal(a.params, b.params)
 
 
+GOLDEN_PARAMS = np.array([[0.0, 0.0], [0.5, 0.004], [0.5, 0.004], [1.0, -0.01], [1.0, 0.0]])
+
+
+def golden_header() -> Header:
+    return Header(25.0, ("theta", "v2x"), steps_for(("theta", "v2x")), FACE, key_interval=4)
+
+
 def test_golden_stream_bytes_are_stable():
     """Fixed input, fixed bytes: a change here is a format change and needs a new version."""
-    h = Header(25.0, ("theta", "v2x"), steps_for(("theta", "v2x")), FACE, key_interval=4)
-    data = frame_bytes(encode(h, np.array([[0.0, 0.0], [0.5, 0.004], [0.5, 0.004], [1.0, -0.01], [1.0, 0.0]])))
-    assert data.hex() == GOLDEN
+    assert frame_bytes(encode(golden_header(), GOLDEN_PARAMS)).hex() == GOLDEN
 
 
-GOLDEN = ("fd004646440200030401a8c301abababababababababababababababababababababababababababababababab0002"
-          "057468657461037632783fd00000000000003f60624dd2f1a9fcd7ad1343fd4002008015b4fd6002bc4095fd6001403b"
-          "fd6001a28dfd400204d8028dfd8001059452")
+def test_a_version_2_stream_still_decodes():
+    """Version 2 had a sync byte and a length before every delta: the same input then gave these bytes."""
+    events, dec = decode(bytes.fromhex(GOLDEN_V2))
+    assert dec.header.names == golden_header().names and not dec.stats.damaged
+    np.testing.assert_array_equal([f.params for f in frames(events)], GOLDEN_PARAMS)
+
+
+def test_small_delta_packets_are_short_and_have_no_sync_byte():
+    packets = encode(header(), walk(60, 13), fpp=2)
+    deltas = [p for p in packets if p[0] >> 5 == DELTA or is_short(p[0])]
+    short = [p for p in deltas if is_short(p[0])]
+    assert len(short) > 0.9 * len(deltas)
+    for p in short:  # one byte of count and length, the body, the CRC-8
+        count, length = divmod(p[0] - SHORT, SHORT_LENGTHS)
+        assert count + 1 in (1, 2) and len(p) == 1 + length + 1  # 1: the last before a keyframe
+    assert len(frame_bytes(packets)) == sum(map(len, packets)) + len(packets) - len(short)
+    long = encode(header(), walk(60, 13), fpp=8)  # 8 frames: more than a short delta holds
+    assert [p[0] & 0x1F for p in long if p[0] >> 5 == DELTA] == [7] * 4  # the 1-2 before a keyframe or the end are short
+    np.testing.assert_array_equal([f.params for f in frames(decode(frame_bytes(long))[0])],
+                                  [f.params for f in frames(decode(frame_bytes(encode(header(), walk(60, 13))))[0])])
+
+
+GOLDEN = ("fd004646440300030401a8c301abababababababababababababababababababababababababababababababab0002"
+          "057468657461037632783fd00000000000003f60624dd2f1a9fcb2908b61fd4002008015b4a2bc40fca1401ca1a2d7"
+          "fd400204d8028dfd8001059452")
+GOLDEN_V2 = ("fd004646440200030401a8c301abababababababababababababababababababababababababababababababab0002"
+             "057468657461037632783fd00000000000003f60624dd2f1a9fcd7ad1343fd4002008015b4fd6002bc4095fd6001403b"
+             "fd6001a28dfd400204d8028dfd8001059452")
 
 
 def test_every_truncated_prefix_keeps_its_frames_and_reports_the_cut():
