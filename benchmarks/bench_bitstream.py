@@ -19,7 +19,7 @@ import numpy as np
 
 from codec.deform import PAPER_PARAMS, Deformer, extended_params
 from codec.face_model import load_base_face
-from protocol.framing import DELTA, KEY, body_bits, is_short
+from protocol.framing import KEY, body_bits, is_delta
 from protocol.quantise import QUALITIES
 from protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, steps_for
 from sender.analysis import LAYOUTS
@@ -34,7 +34,7 @@ LABELS = {**{names: name for name, names in LAYOUTS.items()}, PAPER_PARAMS: "pap
 
 def payload_bits(packets: list[bytes]) -> int:
     """Entropy-coded bits of key and delta packets (type byte, length, CRC and sync excluded)."""
-    return sum(body_bits(p) for p in packets if p[0] >> 5 == KEY or p[0] >> 5 == DELTA or is_short(p[0]))
+    return sum(body_bits(p) for p in packets if p[0] >> 5 == KEY or is_delta(p[0]))
 
 
 def vertices(deformer: Deformer, layout: tuple[str, ...], params: np.ndarray) -> np.ndarray:

@@ -13,7 +13,7 @@ from codec.errors import BitstreamError
 from protocol.arith import Decoder
 from protocol.entropy import GroupState
 from protocol.events import Damage, End, Frame, Model, Stats
-from protocol.framing import DELTA, END, HEADER, KEY, MODEL, SYNC, is_short, packet_size, parse, read_varint
+from protocol.framing import DELTA, END, HEADER, KEY, MODEL, SYNC, is_delta, packet_size, parse, read_varint
 from protocol.header import Header, parse_header
 from protocol.quantise import dequantise
 
@@ -250,8 +250,8 @@ class ByteStreamDecoder(WrapsPacketDecoder):
 class StreamDecoder(ByteStreamDecoder):
     """The clear format's byte-stream decoder.
 
-    A short delta has no sync byte: it is read only where the packet before it
-    ended, never while looking for sync.
+    A delta has no sync byte: it is read only where the packet before it ended,
+    never while looking for sync.
     """
 
     def __init__(self) -> None:
@@ -259,7 +259,7 @@ class StreamDecoder(ByteStreamDecoder):
         self._synced = False  # the buffer starts where the last accepted packet ended
 
     def _starts_packet(self, pos: int) -> bool:
-        return self._buf[pos] == SYNC or (self._synced and is_short(self._buf[pos]))
+        return self._buf[pos] == SYNC or (self._synced and is_delta(self._buf[pos]))
 
     def _no_stream(self) -> str:
         return "empty input: no fd stream" if not self._seen else "input is not an fd stream (no valid header)"

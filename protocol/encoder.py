@@ -12,7 +12,7 @@ import numpy as np
 from codec.errors import BitstreamError
 from protocol.arith import Encoder
 from protocol.entropy import GroupState
-from protocol.framing import DELTA, END, HEADER, KEY, MAX_COUNT, MODEL, SYNC, build, is_short, varint
+from protocol.framing import DELTA, END, HEADER, KEY, MAX_COUNT, MODEL, SYNC, build, is_delta, varint
 from protocol.header import Header, encode_header
 from protocol.quantise import DEAD_ZONE, dequantise, hold_or_round
 
@@ -119,6 +119,6 @@ class StreamEncoder:
 
 
 def frame_bytes(packets: list[bytes], sealed: bool = False) -> bytes:
-    """Packets as they go on a byte stream: a sync byte before each but a short delta. ``sealed``
+    """Packets as they go on a byte stream: a sync byte before each but a delta. ``sealed``
     packets (protocol/secure.py) are opaque, so each has its sync byte."""
-    return b"".join(p if not sealed and is_short(p[0]) else bytes([SYNC]) + p for p in packets)
+    return b"".join(p if not sealed and is_delta(p[0]) else bytes([SYNC]) + p for p in packets)

@@ -3,18 +3,18 @@
 A packet is ``type-and-count byte | length varint | body | check``, except a
 short delta: one byte for frame count and length, then ``body | check``. Deltas
 are nearly every packet, and at 2-4 frames per packet their framing was a
-quarter of the stream; a short delta is sent without a sync byte, so it costs 16
-bits instead of 32. The check is
+quarter of the stream: on a byte stream a delta has no sync byte, and a short
+one costs 16 bits instead of 32. The check is
 as wide as what it guards is worth: CRC-32 for the header and model chunks, CRC-16
 for keyframes and the end mark, CRC-8 for delta packets. A delta packet's CRC also
 covers the number of its first frame, which is not sent: a delta is accepted
 only by a decoder that holds exactly the frames it was predicted from, so a lost
 or repeated packet is caught without spending bits on a sequence number.
 
-On a byte stream (pipe, file, TCP) each packet but a short delta is preceded by
+On a byte stream (pipe, file, TCP) each packet but a delta is preceded by
 :data:`SYNC`; a datagram carries one packet without it. A decoder that lost
 sync finds it again at a sync byte, and only a keyframe restarts decoding
-there, so short deltas need none.
+there, so deltas need none.
 """
 
 import binascii
@@ -103,8 +103,13 @@ def build(kind: int, body: bytes, count: int = 0, first_frame: int = 0) -> bytes
 
 
 def is_short(first: int) -> bool:
-    """Whether a packet starting with byte ``first`` is a short delta (which has no sync byte before it)."""
+    """Whether a packet starting with byte ``first`` is a short delta."""
     return SHORT <= first < SHORT + SHORT_COUNT * SHORT_LENGTHS
+
+
+def is_delta(first: int) -> bool:
+    """Whether a packet starting with byte ``first`` is a delta, short or long (no sync byte before it)."""
+    return first >> 5 == DELTA or is_short(first)
 
 
 def _layout(data: bytes, pos: int) -> tuple[int, int, int, int] | None:

@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from codec.deform import PAPER_PARAMS
 from codec.errors import BitstreamError
-from protocol.framing import DELTA, HEADER, SHORT, SHORT_LENGTHS, build, is_short
+from protocol.framing import DELTA, HEADER, SHORT, SHORT_LENGTHS, build, is_delta, is_short
 from protocol.header import MAX_MODEL, encode_header
 from protocol.quantise import QUALITIES, dequantise, hold_or_round, quantise
 from protocol.stream import (Damage, DatagramDecoder, End, Frame, Header, Model, PacketEncoder, StreamDecoder,
@@ -169,7 +169,7 @@ def test_a_version_2_stream_still_decodes():
     np.testing.assert_array_equal([f.params for f in frames(events)], GOLDEN_PARAMS)
 
 
-def test_small_delta_packets_are_short_and_have_no_sync_byte():
+def test_deltas_have_no_sync_byte_and_small_ones_are_short():
     packets = encode(header(), walk(60, 13), fpp=2)
     deltas = [p for p in packets if p[0] >> 5 == DELTA or is_short(p[0])]
     short = [p for p in deltas if is_short(p[0])]
@@ -177,9 +177,10 @@ def test_small_delta_packets_are_short_and_have_no_sync_byte():
     for p in short:  # one byte of count and length, the body, the CRC-8
         count, length = divmod(p[0] - SHORT, SHORT_LENGTHS)
         assert count + 1 in (1, 2) and len(p) == 1 + length + 1  # 1: the last before a keyframe
-    assert len(frame_bytes(packets)) == sum(map(len, packets)) + len(packets) - len(short)
+    assert len(frame_bytes(packets)) == sum(map(len, packets)) + len(packets) - len(deltas)
     long = encode(header(), walk(60, 13), fpp=8)  # 8 frames: more than a short delta holds
     assert [p[0] & 0x1F for p in long if p[0] >> 5 == DELTA] == [7] * 4  # the 1-2 before a keyframe or the end are short
+    assert len(frame_bytes(long)) == sum(map(len, long)) + sum(not is_delta(p[0]) for p in long)
     np.testing.assert_array_equal([f.params for f in frames(decode(frame_bytes(long))[0])],
                                   [f.params for f in frames(decode(frame_bytes(encode(header(), walk(60, 13))))[0])])
 
@@ -232,6 +233,17 @@ def test_damage_is_concealed_until_the_next_keyframe(damage):
         assert [e.seq for e in events if isinstance(e, Damage)] == [13]
     for f in got[:13] + got[20:]:
         np.testing.assert_array_equal(f.params, dequantise(quantise(params[f.seq], h.steps), h.steps))
+
+
+def test_damage_to_a_long_delta_is_concealed_until_the_next_keyframe():
+    params = walk(40, 13)
+    packets = encode(header(key_interval=20), params, fpp=8)  # header, key 0-7, deltas 8-15 and 16-19, key 20-27...
+    assert packets[2][0] >> 5 == DELTA
+    packets[2] = packets[2][:-1] + bytes([packets[2][-1] ^ 0x01])
+    events, dec = decode(frame_bytes(packets))
+    got = frames(events)
+    assert [f.seq for f in got if f.concealed] == list(range(8, 20)) and dec.stats.damaged == 1
+    assert [f.seq for f in got] == list(range(40)) and events[-1] == End(40)
 
 
 def test_divisor_interpolates_between_sent_frames():
