@@ -240,7 +240,7 @@ class ByteStreamDecoder(WrapsPacketDecoder):
         return self._buf[pos] == SYNC
 
     def _packet_at(self, pos: int, final: bool) -> tuple[list, int] | None:
-        """Events of the packet that starts at ``pos`` (with its sync byte) and the bytes used; None to wait for more."""
+        """Events of the packet that starts at ``pos`` (sync byte included) and the bytes used; None to wait."""
         raise NotImplementedError
 
     def _no_stream(self) -> str:

@@ -4,12 +4,14 @@ A packet is ``type-and-count byte | length varint | body | check``, except a
 short delta: one byte for frame count and length, then ``body | check``. Deltas
 are nearly every packet, and at 2-4 frames per packet their framing was a
 quarter of the stream: on a byte stream a delta has no sync byte, and a short
-one costs 16 bits instead of 32. The check is
-as wide as what it guards is worth: CRC-32 for the header and model chunks, CRC-16
-for keyframes and the end mark, CRC-8 for delta packets. A delta packet's CRC also
-covers the number of its first frame, which is not sent: a delta is accepted
-only by a decoder that holds exactly the frames it was predicted from, so a lost
-or repeated packet is caught without spending bits on a sequence number.
+one costs 16 bits instead of 32.
+
+The check is as wide as what it guards is worth: CRC-32 for the header and
+model chunks, CRC-16 for keyframes and the end mark, CRC-8 for delta packets. A
+delta packet's CRC also covers the number of its first frame, which is not sent:
+a delta is accepted only by a decoder that holds exactly the frames it was
+predicted from, so a lost or repeated packet is caught without spending bits on
+a sequence number.
 
 On a byte stream (pipe, file, TCP) each packet but a delta is preceded by
 :data:`SYNC`; a datagram carries one packet without it. A decoder that lost

@@ -179,7 +179,7 @@ def test_deltas_have_no_sync_byte_and_small_ones_are_short():
         assert count + 1 in (1, 2) and len(p) == 1 + length + 1  # 1: the last before a keyframe
     assert len(frame_bytes(packets)) == sum(map(len, packets)) + len(packets) - len(deltas)
     long = encode(header(), walk(60, 13), fpp=8)  # 8 frames: more than a short delta holds
-    assert [p[0] & 0x1F for p in long if p[0] >> 5 == DELTA] == [7] * 4  # the 1-2 before a keyframe or the end are short
+    assert [p[0] & 0x1F for p in long if p[0] >> 5 == DELTA] == [7] * 4  # those before a keyframe or the end: short
     assert len(frame_bytes(long)) == sum(map(len, long)) + sum(not is_delta(p[0]) for p in long)
     np.testing.assert_array_equal([f.params for f in frames(decode(frame_bytes(long))[0])],
                                   [f.params for f in frames(decode(frame_bytes(encode(header(), walk(60, 13))))[0])])
