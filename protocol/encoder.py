@@ -1,7 +1,7 @@
 """Parameters in, packets out: quantise, predict in closed loop, code, frame.
 
 :class:`PacketEncoder` returns packets for datagram transports;
-:class:`StreamEncoder` returns the same packets with sync bytes for byte streams.
+:class:`StreamEncoder` returns the same packets framed for byte streams (:func:`frame_bytes`).
 The encoder records what the decoder will output for each coded frame
 (:attr:`PacketEncoder.reconstruction`): with a dead zone that is not the nearest
 quantised value, so it is the only exact prediction of the receiver.
@@ -101,7 +101,7 @@ class PacketEncoder:
 
 
 class StreamEncoder:
-    """:class:`PacketEncoder` for byte streams: the same methods return bytes, each packet after a sync byte."""
+    """:class:`PacketEncoder` for byte streams: the same methods return bytes, as :func:`frame_bytes` frames them."""
 
     def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"",
                  dead_zone: float = DEAD_ZONE) -> None:

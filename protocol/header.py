@@ -14,7 +14,7 @@ from protocol.framing import read_varint, varint
 
 MAGIC = b"FD"
 VERSION = 3
-READABLE = (2, 3)  # version 2 differs only in having no short deltas
+READABLE = (2, 3)  # version 2 differs only in framing: every packet long, and after a sync byte
 MAX_NAMES = 64
 MAX_NAME = 32
 MAX_MODEL = 16 << 20  # bytes of pre-shared face model carried in-band

@@ -114,7 +114,7 @@ def _run(args) -> int:
     try:
         for packets in session.packets():
             if sink is None:  # opened only once there is something to send
-                sink = open_sink(args.output, sealed=key is not None)
+                sink = open_sink(args.output, sealed=session.sealed)
             sink.write(packets)
             if progress:
                 progress.update(len(session.frames), source.length, f"{len(session.frames)} frames")

@@ -8,10 +8,9 @@ import pytest
 from codec.deform import PAPER_PARAMS, POSE_PARAMS
 from codec.errors import BitstreamError, InputError
 from codec.upper_face import UPPER_PARAMS
-from protocol.framing import SYNC
 from protocol.secure import SecureOpener, SecureSealer, key_id, parse_key, preamble_size
 from protocol.secure_stream import SecureDatagramDecoder, SecureStreamDecoder, seal_stream
-from protocol.stream import DatagramDecoder, Frame, Header, Model, PacketEncoder, steps_for
+from protocol.stream import DatagramDecoder, Frame, Header, Model, PacketEncoder, frame_bytes, steps_for
 
 KEY = bytes(range(32))
 LAYOUTS = {"paper": PAPER_PARAMS + POSE_PARAMS[:3], "full": PAPER_PARAMS + UPPER_PARAMS + POSE_PARAMS}
@@ -37,10 +36,6 @@ def frames(events) -> list[tuple[int, bytes, bool]]:
     return [(e.seq, e.params.tobytes(), e.concealed) for e in events if isinstance(e, Frame)]
 
 
-def as_bytes(sealed) -> bytes:
-    return b"".join(bytes([SYNC]) + p for p in sealed)
-
-
 @pytest.mark.parametrize("layout", sorted(LAYOUTS))
 @pytest.mark.parametrize("fpp", [1, 2, 5])
 @pytest.mark.parametrize("tag_bits", [32, 64, 128])
@@ -55,7 +50,7 @@ def test_round_trip_on_every_layout_datagrams_and_bytes(layout, fpp, tag_bits):
     assert frames(got) == frames(expected) and len(frames(got)) == 60
     assert [e.data for e in got if isinstance(e, Model)] == [MODEL] and dec.ended
     stream = SecureStreamDecoder(KEY)
-    data = as_bytes(sealed)
+    data = frame_bytes(sealed, sealed=True)
     got = [e for i in range(0, len(data), 5) for e in stream.feed(data[i:i + 5])] + stream.close()
     assert frames(got) == frames(expected) and stream.security.opened == len(packets)
 
@@ -80,7 +75,7 @@ def test_a_flipped_bit_anywhere_is_rejected_and_changes_nothing():
 
 def test_a_flipped_bit_in_a_byte_stream_never_renders_a_wrong_frame():
     packets = clear_packets(LAYOUTS["paper"], 2, n=50)
-    data = as_bytes(seal_stream(SecureSealer(KEY), packets))
+    data = frame_bytes(seal_stream(SecureSealer(KEY), packets), sealed=True)
     truth = {seq: params for seq, params, _ in frames(events_of(DatagramDecoder(), packets))}
     start = preamble_size(4) + 1
     for bit in range(8 * start, 8 * len(data), 37):
@@ -133,7 +128,7 @@ def test_a_wrong_key_gives_no_frame_and_says_so():
     assert events_of(dec, sealed) == [] and dec.header is None
     assert key_id(KEY).hex() in dec.no_stream() and "another key" in dec.no_stream()
     stream = SecureStreamDecoder(other)
-    assert stream.feed(as_bytes(sealed)) == []
+    assert stream.feed(frame_bytes(sealed, sealed=True)) == []
     with pytest.raises(BitstreamError, match="another key"):
         stream.close()
 
@@ -144,7 +139,7 @@ def test_a_forged_preamble_or_clear_stream_opens_nothing():
     opener = SecureOpener(KEY)
     assert not opener.preamble(bytes(preamble)) and not opener.ready and opener.stats.auth_failures == 1
     stream = SecureStreamDecoder(KEY)
-    stream.feed(as_bytes(clear_packets(LAYOUTS["paper"])))
+    stream.feed(frame_bytes(clear_packets(LAYOUTS["paper"])))
     with pytest.raises(BitstreamError, match="--key"):
         stream.close()
 
@@ -185,5 +180,5 @@ def test_an_old_preamble_replayed_first_cannot_lock_the_receiver_out():
     got = events_of(dec, [old[0]] + new)
     assert frames(got) == frames(events_of(DatagramDecoder(), packets)) and dec.ended
     stream = SecureStreamDecoder(KEY)
-    got = stream.feed(as_bytes([old[0]] + new)) + stream.close()
+    got = stream.feed(frame_bytes([old[0]] + new, sealed=True)) + stream.close()
     assert frames(got) == frames(events_of(DatagramDecoder(), packets))

@@ -38,7 +38,8 @@ def test_keygen_writes_a_private_key_and_never_overwrites_one(key_file, capsys):
 
 
 def sealed_file(path, key, n=N) -> Path:
-    path.write_bytes(frame_bytes(seal_stream(SecureSealer(key), [p for p, _ in stream_packets(smooth_tracks(n))])))
+    sealed = seal_stream(SecureSealer(key), [p for p, _ in stream_packets(smooth_tracks(n))])
+    path.write_bytes(frame_bytes(sealed, sealed=True))
     return path
 
 
@@ -134,7 +135,7 @@ def test_a_face_file_sealed_at_rest_opens_only_with_its_key(tmp_path, key_file, 
     enc = PacketEncoder(header(ident), 2)
     packets = enc.header() + [p for x in smooth_tracks(10) for p in enc.frame(x, True)]
     stream = tmp_path / "s.fd"
-    stream.write_bytes(frame_bytes(seal_stream(SecureSealer(key), packets + enc.end())))
+    stream.write_bytes(frame_bytes(seal_stream(SecureSealer(key), packets + enc.end()), sealed=True))
     code, err = run_main(capsys, [str(stream), "--key", str(key_file), "--face", str(sealed_path),
                                   "-o", str(tmp_path / "o.y4m"), "--size", "64", "--json"])
     assert code == 0 and json.loads(err.strip().splitlines()[-1])["face"] == "file"
@@ -144,6 +145,6 @@ def test_tcp_carries_a_sealed_stream(tmp_path, key_file):
     sealed = seal_stream(SecureSealer(read_key(str(key_file))), [p for p, _ in stream_packets(smooth_tracks())])
     proc, port = start_listener("tcp://127.0.0.1:0", tmp_path, "--key", str(key_file))
     with socket.create_connection(("127.0.0.1", port), timeout=DEADLINE) as sock:
-        sock.sendall(frame_bytes(sealed))
+        sock.sendall(frame_bytes(sealed, sealed=True))
     stats, _ = finish(proc)
     assert stats["frames"] == N and stats["concealed"] == 0 and stats["security"]["opened"] == len(sealed) - 1
