@@ -11,7 +11,18 @@ Membership: a vertex belongs to the stretch region whose triangle contains P
 the plane through O and the hinge axis (the band outside the polyline
 F12-F14-F4-F15-F13: chin and jaw line); otherwise it takes the nearest region
 (largest smallest weight) with its weights clipped to the triangle. Inner-lip
-vertices only take regions on their own side of the mouth slit.
+vertices only take the lip regions on their own side of the mouth slit.
+
+Two departures from the paper, both for the shape of an opening mouth (measured
+in docs/deformation.md):
+- The inner lips never take the slit's thin triangles (F9, F8, F2), (F9, F3, F8):
+  seen from O the lip curve wanders in and out of them, and their weights along
+  it are not monotonic, so an opening lower lip showed a saw of skin teeth.
+- The lower lip's midpoint weight w of F3 is rounded to 1 - (1 - w)^2 (the
+  other two weights scaled to keep the sum 1): linear blending bends the lip at
+  F3 into a V, the rounded one into the U of a real lip. The map w -> 1 - (1 - w)^2
+  depends on w alone, which is the same on both sides of a shared edge, so the
+  motion stays continuous, and F3 itself still moves by exactly V3.
 """
 
 from __future__ import annotations
@@ -24,6 +35,9 @@ from codec.face_model import BaseFace
 
 FEATURE_NAMES: tuple[str, ...] = tuple(f"F{i}" for i in range(1, 16))
 COVER_TOL = 1e-9
+#: Feature points whose blend weight is rounded (module docstring). Rounding F2 as well was
+#: measured too: no better fit of real upper lips, so the upper lip keeps the paper's blend.
+ROUNDED = ("F3",)
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,6 +117,8 @@ def build_region_map(face: BaseFace) -> RegionMap:
     weights = np.zeros((n, len(FEATURE_NAMES)))
     np.add.at(weights, (np.arange(n)[:, None], triangles[best]), w)
     weights[jaw] = 0.0
+    for name in ROUNDED:
+        _round(weights, index[name])
 
     names = tuple(name for name, _ in stretch) + tuple(meta["jaw_regions"]["names"])
     region = best.copy()
@@ -110,17 +126,30 @@ def build_region_map(face: BaseFace) -> RegionMap:
     return RegionMap(names, region, jaw, weights, triangles, origin, covered)
 
 
+def _round(weights: np.ndarray, column: int) -> None:
+    """Round (in place) one feature point's weights w to 1 - (1 - w)^2, scaling the row's others by
+    (1 - new) / (1 - w) so each row still sums to 1."""
+    w = weights[:, column].copy()
+    rounded = 1.0 - (1.0 - w) ** 2
+    rest = 1.0 - w
+    weights *= np.divide(1.0 - rounded, rest, out=np.zeros_like(w), where=rest > 0)[:, None]
+    weights[:, column] = rounded
+
+
 def _keep_slit(min_w: np.ndarray, triangles: np.ndarray, loops: dict, index: dict) -> None:
-    """Forbid (in place) regions using F3 for upper inner-lip vertices and regions
-    using F2 for lower ones, so the mouth opens along the lips, not a straight chord.
+    """Forbid (in place) the slit's triangles and those using the other lip's midpoint (F3 for
+    upper inner-lip vertices, F2 for lower ones) to the inner lips, so the mouth opens along
+    the lips, not a straight chord, and each lip moves smoothly along its length.
 
     The canonical mouth is open by only ~0.03 units, so geometry alone may put an
-    inner-lip vertex on the wrong side of the chord F9-F8. The corners, on both
-    loops, are left to geometry.
+    inner-lip vertex on the wrong side of the chord F9-F8 or inside a slit triangle;
+    such a vertex takes the nearest lip region, its weights clipped onto the lip's edge.
+    The corners, on both loops, are left to geometry.
     """
     upper, lower = set(loops["inner_lip_upper"]), set(loops["inner_lip_lower"])
+    slit = (triangles == index["F8"]).any(axis=1) & (triangles == index["F9"]).any(axis=1)
     for lip, other in ((upper - lower, "F3"), (lower - upper, "F2")):
-        bad = np.flatnonzero((triangles == index[other]).any(axis=1))
+        bad = np.flatnonzero(slit | (triangles == index[other]).any(axis=1))
         min_w[np.ix_(bad, sorted(lip))] = -np.inf
 
 

@@ -152,6 +152,25 @@ def test_weights_partition_of_unity_and_mouth_slit():
     assert (w[LOWER[1:-1], f2] == 0).all()  # lower lip never follows F2
 
 
+@pytest.mark.parametrize("loop, point", [(UPPER, "F2"), (LOWER, "F3")])
+def test_each_lip_follows_its_midpoint_more_the_nearer_it_is(loop, point):
+    """No saw of skin teeth on an opening mouth: along the inner lip, corner to midpoint, the
+    midpoint's weight never falls (the slit's thin triangles gave 0.24, 0.31, 0.56, 0.18, 1)."""
+    w = DEF.regions.weights[loop, FEATURE_NAMES.index(point)]
+    half = len(loop) // 2
+    assert w[half] == pytest.approx(1.0)
+    assert (np.diff(w[:half + 1]) > 0).all() and (np.diff(w[half:]) < 0).all()
+
+
+def test_the_lower_lip_drops_as_a_curve_not_a_v():
+    """Halfway from midpoint to corner, the lower lip goes more than half of F3's way down."""
+    params = np.zeros(13)
+    params[PAPER_PARAMS.index("v3y")] = -0.04
+    drop = X[LOWER, 1] - DEF.deform(params)[LOWER, 1]
+    for half_way in (178, 402):  # about halfway along the lip, each side
+        assert drop[LOWER.index(half_way)] > 0.6 * 0.04
+
+
 def test_fig7_opens_mouth_with_theta():
     params, f3 = PRESETS["fig7"]
     gaps = []
