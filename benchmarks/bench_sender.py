@@ -32,7 +32,7 @@ import numpy as np
 from codec.deform import Deformer
 from codec.face_model import load_base_face
 from protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, quality_for_bitrate
-from protocol.quantise import DEAD_ZONE, QUALITIES
+from protocol.quantise import DEAD_ZONE, DEFAULT_QUALITY, QUALITIES
 from sender.analysis import LAYOUTS, FaceAnalyser, Smoothing
 from sender.calibrate import lip_gap
 from sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity
@@ -155,12 +155,12 @@ def clips(smoothing: float) -> None:
             analyser, results, targets, params = analyse(face, landmarks, source.fps, layout, Smoothing(smoothing))
             names = analyser.names
             theta = np.array([r.params[0] for r, f in zip(results, found) if f])
-            rd = []
+            rd, bits_at = [], {}
             for q in QUALITIES:
-                bits, decoded = code(stream_header(names, source.fps, FACE_ID, q), results)
-                rd.append(f"{bits:.0f}: {fidelity(deformer, targets, decoded, names).relative:.2f}")
+                bits_at[q], decoded = code(stream_header(names, source.fps, FACE_ID, q), results)
+                rd.append(f"{bits_at[q]:.0f}: {fidelity(deformer, targets, decoded, names).relative:.2f}")
             f = lambda x: f"{x.relative:.2f} ({x.error:.3f})"
-            print(f"| {video.stem} | {layout} | {code(stream_header(names, source.fps, FACE_ID), results)[0]:.1f} | "
+            print(f"| {video.stem} | {layout} | {bits_at[DEFAULT_QUALITY]:.1f} | "
                   f"{lag(theta, gap):+.2f} | {f(fidelity(deformer, targets, params, names))} | "
                   f"{f(fidelity(deformer, targets, params, names, analyser.fit.lower))} | "
                   f"{f(fidelity(deformer, targets, params, names, analyser.fit.upper_landmarks))} | "
