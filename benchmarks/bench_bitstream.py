@@ -1,7 +1,8 @@
 """Bits per frame of the stream format on parameter dumps, with the error of what the decoder outputs beside each.
 
 Dumps come from ``python -m sender.cli CLIP -o /dev/null --dump DUMP.npz --params paper|mouth|full``
-(unquantised parameters: the sender's only hold is the encoder's dead zone).
+(unquantised parameters: the sender's only hold is the encoder's dead zone). As fd-send does, the
+stream codes the principal axes of the first second's motion unless ``--no-basis``.
 Prints a Markdown table: clip, layout, quality, dead zone, bits per frame
 (entropy-coded payload, framing, total), bit/s at the clip's frame rate, the
 largest and rms vertex error of every decoded frame (interpolated ones too)
@@ -23,6 +24,7 @@ from protocol.framing import KEY, body_bits, is_delta
 from protocol.quantise import QUALITIES
 from protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, steps_for
 from sender.analysis import LAYOUTS
+from sender.session import sample_basis
 
 FACE_PX = 512 / 1.35  # receiver framing: the view is 1.35 face heights tall
 ANGLES = ("theta", "rx", "ry", "rz")
@@ -47,8 +49,10 @@ def bench(path: Path, layout: tuple[str, ...], quality: int, dead_zone: float, a
     names = tuple(str(n) for n in d["names"])
     fps = float(d["fps"])
     params = d["params"][:, [names.index(n) for n in layout]]
+    first = round(fps)  # the basis comes from the first second, as fd-send makes it
+    basis = None if args.no_basis else sample_basis(layout, list(params[:first][d["found"][:first]]))
     header = Header(fps, layout, steps_for(layout, quality), "00" * 32, quality=quality,
-                    divisor=args.divisor, skip_static=not args.no_static)
+                    divisor=args.divisor, skip_static=not args.no_static, basis=basis)
     enc = PacketEncoder(header, args.frames_per_packet, dead_zone=dead_zone)
     head = enc.header()
     packets, sent = [], {}
@@ -88,10 +92,13 @@ def main() -> None:
                    help="encoder dead zones in steps (0.5: plain rounding)")
     p.add_argument("--divisor", type=int, default=1, help="send one frame in N, the decoder interpolates")
     p.add_argument("--no-static", action="store_true", help="static-frame flags off (fd-send sets them)")
+    p.add_argument("--no-basis", action="store_true",
+                   help="code each parameter on its own (fd-send --no-basis), not the first second's principal axes")
     args = p.parse_args()
     deformer = Deformer(load_base_face())
     print(f"frames per packet: {args.frames_per_packet}, divisor {args.divisor}, static flags "
-          f"{'off' if args.no_static else 'on'}; vertex error in px for a face {FACE_PX:.0f} px tall")
+          f"{'off' if args.no_static else 'on'}, basis {'off' if args.no_basis else 'on'}; "
+          f"vertex error in px for a face {FACE_PX:.0f} px tall")
     print("| clip | layout | quality | dead zone | payload bits/frame | framing bits/frame | total bits/frame | "
           "bit/s | max vertex err px | rms vertex err px | max angle err deg | encode fps | decode fps |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")

@@ -15,7 +15,6 @@ from protocol.entropy import GroupState
 from protocol.events import Damage, End, Frame, Model, Stats
 from protocol.framing import DELTA, END, HEADER, KEY, MODEL, SYNC, is_delta, packet_size, parse, read_varint
 from protocol.header import Header, parse_header
-from protocol.quantise import dequantise
 
 MAX_SEEK = 1 << 16  # bytes searched for a header before the input is declared foreign
 _MAX_FRAME = 1 << 40
@@ -137,7 +136,7 @@ class PacketDecoder:
     def _emit(self, coded: int, decoded: list[tuple[list[int], bool]]) -> list:
         events = []
         for c, (values, face) in enumerate(decoded, coded):
-            params = dequantise(values, self.header.steps)
+            params = self.header.values(values)
             frame = c * self.header.divisor
             events += self._fill(frame, (c, params))
             events.append(Frame(frame, params, face))

@@ -14,7 +14,7 @@ from protocol.arith import Encoder
 from protocol.entropy import GroupState
 from protocol.framing import DELTA, END, HEADER, KEY, MAX_COUNT, MODEL, SYNC, build, is_delta, varint
 from protocol.header import Header, encode_header
-from protocol.quantise import DEAD_ZONE, dequantise, hold_or_round
+from protocol.quantise import DEAD_ZONE, hold_or_round
 
 MODEL_CHUNK = 1024
 _MAX_INDEX = 1 << 30  # quantised values beyond this are a caller's bug (NaN, wrong units)
@@ -26,8 +26,8 @@ class PacketEncoder:
 
     Packets never span a keyframe; with ``header.skip_static`` a frame equal to
     the previous does not count towards ``frames_per_packet``. ``dead_zone``
-    (steps, 0.5-4; 0.5: plain rounding) bounds each parameter's error: see
-    :func:`protocol.quantise.hold_or_round`. It holds across keyframes too, so a
+    (steps, 0.5-4; 0.5: plain rounding) bounds each coded value's error (each parameter's, or
+    with the header's basis each coordinate's): see :func:`protocol.quantise.hold_or_round`. It holds across keyframes too, so a
     still value does not jump once a second.
     """
 
@@ -63,10 +63,10 @@ class PacketEncoder:
         if index % self._h.divisor:
             return []
         coded = index // self._h.divisor
-        values = hold_or_round(params, self._h.steps, self._held, self._dead_zone)
+        values = hold_or_round(self._h.coordinates(params), 1.0, self._held, self._dead_zone)
         if max(map(abs, values)) >= _MAX_INDEX:
             raise BitstreamError("parameter out of range for the stream's steps")
-        self._held, self.reconstruction = values, dequantise(values, self._h.steps)
+        self._held, self.reconstruction = values, self._h.values(values)
         face = bool(face_seen)
         if coded % self._h.key_interval == 0:
             self._group = GroupState(len(values), self._h.skip_static)

@@ -10,17 +10,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from codec.errors import BitstreamError
+from protocol.basis import basis_matrices
 from protocol.framing import read_varint, varint
+from protocol.quantise import dequantise
 
 MAGIC = b"FD"
 VERSION = 3
-READABLE = (2, 3)  # version 2 differs only in framing: every packet long, and after a sync byte
+#: Version 2 differs only in framing (every packet long, and after a sync byte); version 4 adds a
+#: coding basis to version 3's header, and is written only when the header has one.
+READABLE = (2, 3, 4)
+BASIS_VERSION = 4
 MAX_NAMES = 64
 MAX_NAME = 32
 MAX_MODEL = 16 << 20  # bytes of pre-shared face model carried in-band
 MAX_KEY_INTERVAL = 255
 MAX_DIVISOR = 16
-_FLAG_F3_WITH_JAW, _FLAG_STATIC = 1, 2
+_FLAG_F3_WITH_JAW, _FLAG_STATIC, _FLAG_BASIS = 1, 2, 4
 
 
 @dataclass(frozen=True, eq=False)
@@ -33,7 +38,9 @@ class Header:
     from (0 if custom); key_interval: coded frames between keyframes; divisor:
     one frame in ``divisor`` is sent, the decoder interpolates the others;
     skip_static: frames equal to the previous cost a flag only; model_size:
-    bytes of face model carried after the header (0: referenced by face_id only).
+    bytes of face model carried after the header (0: referenced by face_id only);
+    basis: (k, k) int8 coding axes (``protocol.basis``) or None: the coded values are then
+    coordinates along the axes, in steps, instead of one value per parameter.
     """
 
     fps: float
@@ -46,6 +53,7 @@ class Header:
     divisor: int = 1
     skip_static: bool = False
     model_size: int = 0
+    basis: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         names, steps = self.names, np.asarray(self.steps, dtype=np.float64)
@@ -63,19 +71,37 @@ class Header:
         except (ValueError, TypeError):
             raise BitstreamError("face id must be a sha256 hex string") from None
         object.__setattr__(self, "steps", steps)
+        if self.basis is not None:
+            forward, inverse = basis_matrices(self.basis, len(names))
+            object.__setattr__(self, "_forward", forward)
+            object.__setattr__(self, "_inverse", inverse)
+
+    def coordinates(self, params: np.ndarray) -> np.ndarray:
+        """(k,) parameters -> (k,) coded coordinates in steps (indices are their rounding)."""
+        u = np.asarray(params, dtype=np.float64) / self.steps
+        return u if self.basis is None else u @ self._inverse
+
+    def values(self, indices) -> np.ndarray:
+        """k coded indices -> (k,) float64 parameters: what the decoder outputs."""
+        if self.basis is None:
+            return dequantise(indices, self.steps)
+        return (np.asarray(indices, dtype=np.float64) @ self._forward) * self.steps
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Header) and encode_header(self) == encode_header(other)
 
 
 def encode_header(h: Header) -> bytes:
-    flags = _FLAG_F3_WITH_JAW * h.f3_with_jaw | _FLAG_STATIC * h.skip_static
-    out = bytearray(MAGIC + bytes([VERSION, flags, h.quality, h.key_interval, h.divisor]))
+    flags = _FLAG_F3_WITH_JAW * h.f3_with_jaw | _FLAG_STATIC * h.skip_static | _FLAG_BASIS * (h.basis is not None)
+    version = VERSION if h.basis is None else BASIS_VERSION
+    out = bytearray(MAGIC + bytes([version, flags, h.quality, h.key_interval, h.divisor]))
     out += varint(round(h.fps * 1000)) + bytes.fromhex(h.face_id) + varint(h.model_size)
     out.append(len(h.names))
     for name in h.names:
         out += bytes([len(name)]) + name.encode("ascii")
     out += struct.pack(f">{len(h.names)}d", *h.steps)
+    if h.basis is not None:
+        out += h.basis.tobytes()
     return bytes(out)
 
 
@@ -87,6 +113,8 @@ def parse_header(body: bytes) -> Header:
         raise BitstreamError(f"unsupported stream version {body[2]} (this decoder reads "
                              f"{', '.join(map(str, READABLE))})")
     flags, quality, key_interval, divisor = body[3:7]
+    if bool(flags & _FLAG_BASIS) != (body[2] == BASIS_VERSION):
+        raise BitstreamError(f"stream version {body[2]} with{'' if flags & _FLAG_BASIS else 'out'} a basis")
     fps_milli, pos = _varint(body, 7, 1_000_000)
     if pos + 32 > len(body):
         raise BitstreamError("stream header cut short")
@@ -106,11 +134,15 @@ def parse_header(body: bytes) -> Header:
         except UnicodeDecodeError:
             raise BitstreamError("parameter name is not ASCII") from None
         pos += 1 + n
-    if len(body) != pos + 8 * count:
+    basis_bytes = count * count if flags & _FLAG_BASIS else 0
+    if len(body) != pos + 8 * count + basis_bytes:
         raise BitstreamError("stream header length does not match its layout")
-    steps = np.array(struct.unpack(f">{count}d", body[pos:]))
+    steps = np.array(struct.unpack(f">{count}d", body[pos:pos + 8 * count]))
+    basis = None
+    if basis_bytes:
+        basis = np.frombuffer(body, dtype=np.int8, count=basis_bytes, offset=pos + 8 * count).reshape(count, count)
     return Header(fps_milli / 1000, tuple(names), steps, face_id, bool(flags & _FLAG_F3_WITH_JAW), quality,
-                  key_interval, divisor, bool(flags & _FLAG_STATIC), model_size)
+                  key_interval, divisor, bool(flags & _FLAG_STATIC), model_size, basis)
 
 
 def _varint(body: bytes, pos: int, limit: int) -> tuple[int, int]:

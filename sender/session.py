@@ -8,6 +8,8 @@ import numpy as np
 
 from codec.face_file import decode_face, read_face_bytes
 from codec.face_model import load_base_face
+from codec.deform import POSE_PARAMS
+from protocol.basis import principal_basis
 from protocol.quantise import DEAD_ZONE
 from protocol.secure import DEFAULT_TAG_BITS, SecureSealer
 from protocol.stream import DEFAULT_QUALITY, Header, PacketEncoder, frame_bytes, quality_for_bitrate, steps_for
@@ -16,11 +18,18 @@ from sender.sources import open_source
 
 
 def stream_header(names: tuple[str, ...], fps: float, face_id: str, quality: int = DEFAULT_QUALITY,
-                  model_size: int = 0) -> Header:
+                  model_size: int = 0, basis: np.ndarray | None = None) -> Header:
     """The header fd-send writes: a keyframe a second, and static-frame flags (with the dead zone a
     still face sends unchanged frames, a flag each)."""
     return Header(fps, names, steps_for(names, quality), face_id, quality=quality,
-                  key_interval=max(1, min(255, round(fps))), skip_static=True, model_size=model_size)
+                  key_interval=max(1, min(255, round(fps))), skip_static=True, model_size=model_size,
+                  basis=basis)
+
+
+def sample_basis(names: tuple[str, ...], sample: list[np.ndarray]) -> np.ndarray | None:
+    """The coding basis of ``protocol.basis`` for a sample of the call's parameters, head pose apart.
+    Steps scale alike at every level, so the basis does not depend on the level."""
+    return principal_basis(np.array(sample), steps_for(names), [n in POSE_PARAMS for n in names])
 
 
 class SendSession:
@@ -34,14 +43,15 @@ class SendSession:
     pre-shared key (``protocol.secure``) to seal every packet with, tags of ``tag_bits``;
     dead_zone: the encoder's dead zone in quantiser steps (0.5: plain rounding); bitrate: bit/s
     to aim at instead of ``quality``: the finest level that codes the first second of the call
-    within it (``protocol.rate``), chosen before the header goes out.
+    within it (``protocol.rate``), chosen before the header goes out; basis: code the principal
+    components of the first second's motion (``protocol.basis``) instead of each parameter.
     """
 
     def __init__(self, source, quality: int = DEFAULT_QUALITY, frames_per_packet: int = 2,
                  layout: str = "auto", neutral: int | None = None, smoothing: float = 1.0,
                  face_file: str | None = None, embed_face: bool = True, key: bytes | None = None,
                  tag_bits: int = DEFAULT_TAG_BITS, dead_zone: float = DEAD_ZONE,
-                 bitrate: float | None = None) -> None:
+                 bitrate: float | None = None, basis: bool = True) -> None:
         from sender.tracker import FaceTracker
 
         self.source = open_source(source) if isinstance(source, str) else source
@@ -56,7 +66,7 @@ class SendSession:
         self.analyser = FaceAnalyser(FaceTracker(), face, fps, layout, calibration_frames=round(fps),
                                      neutral=neutral, smoothing=Smoothing(smoothing))
         self._face_id, self._model, self._fpp, self._dead_zone = face.content_id, model, frames_per_packet, dead_zone
-        self._bitrate = bitrate
+        self._bitrate, self._use_basis, self._basis = bitrate, basis, None
         self._configure(quality)
         self.sealer = None if key is None else SecureSealer(key, tag_bits)
         self.frames: list[FrameAnalysis] = []
@@ -71,7 +81,8 @@ class SendSession:
         return self.sealer is not None
 
     def _header(self, quality: int) -> Header:
-        return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model))
+        return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model),
+                             self._basis)
 
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)
@@ -81,11 +92,15 @@ class SendSession:
         """Lists of packets: the header once a face is known (a clip without one sends nothing),
         then what each frame completes, then the end mark."""
         results = self.analyser.run(self.source.frames())
-        if self._bitrate is not None:
+        if self._bitrate is not None or self._use_basis:  # the analyser holds the first second anyway
             first = list(islice(results, max(1, round(self.source.fps))))
-            if first:
+            if self._use_basis:
+                self._basis = sample_basis(self.analyser.names, [r.params for r in first if r.landmarks is not None])
+            quality = self.header.quality
+            if first and self._bitrate is not None:
                 sample = [(r.params, r.landmarks is not None) for r in first]
-                self._configure(quality_for_bitrate(self._header, sample, self._bitrate, self._fpp, self._dead_zone))
+                quality = quality_for_bitrate(self._header, sample, self._bitrate, self._fpp, self._dead_zone)
+            self._configure(quality)
             results = chain(first, results)
         for seq, result in enumerate(results):
             if seq == 0:
@@ -128,6 +143,7 @@ class SendSession:
                 "quality": self.header.quality,
                 "bits_per_frame": round(bits, 1), "kbit_per_s": round(bits * self.source.fps / 1000, 3),
                 "fps": self.source.fps, "header_bytes": self.header_bytes, "layout": list(self.header.names),
+                "basis": self.header.basis is not None,
                 "rest_frame": None if rest is None else rest.index,
                 "tag_bits": None if self.sealer is None else 8 * self.sealer.tag_bytes,
                 "frames_per_second": round(n / max(time.perf_counter() - self._started, 1e-9), 1)}

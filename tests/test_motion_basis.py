@@ -13,7 +13,8 @@ from codec.errors import InputError
 from codec.face_file import decode_face, encode_face, load_face_file
 from codec.face_model import load_base_face
 from codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS, MotionBasis, learn_basis
-from protocol.quantise import DEAD_ZONE, steps_for
+from protocol.quantise import DEAD_ZONE
+from protocol.stream import StreamDecoder
 from sender.fit import ModelFit
 from sender.motion import FRAMES_PER_PATTERN, learn_motion
 
@@ -143,8 +144,11 @@ def test_enrol_then_send_the_personal_layout_end_to_end(tmp_path, over):
     cols = slice(len(paper), len(paper) + 4)
     coeffs = recv["params"][:, cols]
     assert np.abs(coeffs).max() > 0.002  # the basis is used, frame by frame
-    steps = steps_for(tuple(str(n) for n in recv["names"]))[cols]  # within the encoder's dead zone
-    assert np.all(np.abs(coeffs - np.load(tmp_path / "sent.npz")["params"][:, cols]) <= DEAD_ZONE * steps * (1 + 1e-9))
+    decoder = StreamDecoder()  # within the encoder's dead zone, along the header's coding axes
+    decoder.feed(stream.read_bytes())
+    coded = np.array([decoder.header.coordinates(p) for p in recv["params"]])
+    meant = np.array([decoder.header.coordinates(p) for p in np.load(tmp_path / "sent.npz")["params"]])
+    assert np.all(np.abs(coded - meant) <= DEAD_ZONE * (1 + 1e-9))
 
 
 def test_a_short_clip_gets_as_many_patterns_as_its_frames_teach():

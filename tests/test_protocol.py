@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 from codec.deform import PAPER_PARAMS
 from codec.errors import BitstreamError
 from protocol.framing import DELTA, HEADER, SHORT, SHORT_LENGTHS, build, is_delta, is_short
+from protocol.basis import SCALE
 from protocol.header import MAX_MODEL, encode_header
 from protocol.quantise import QUALITIES, dequantise, hold_or_round, quantise
 from protocol.stream import (Damage, DatagramDecoder, End, Frame, Header, Model, PacketEncoder, StreamDecoder,
@@ -19,6 +20,12 @@ FACE = "ab" * 32
 
 def header(names=PAPER_PARAMS, quality=3, **kw) -> Header:
     return Header(25.0, names, steps_for(names, quality), FACE, quality=quality, **kw)
+
+
+def random_basis(k: int, seed: int = 0) -> np.ndarray:
+    """(k, k) int8 coding basis: a random rotation, rounded as the header carries it."""
+    q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(k, k)))
+    return np.rint(q * SCALE).astype(np.int8)
 
 
 def walk(n: int, k: int, seed: int = 0) -> np.ndarray:
@@ -53,9 +60,11 @@ def frames(events) -> list[Frame]:
 
 @settings(max_examples=40, deadline=None)
 @given(st.sampled_from(LAYOUTS), st.sampled_from(QUALITIES), st.integers(1, 32), st.booleans(),
-       st.integers(1, 30), st.lists(st.floats(-2, 2), min_size=0, max_size=60), st.integers(0, 2**32 - 1))
-def test_round_trip_gives_the_quantised_values(names, quality, fpp, static, key, jumps, seed):
-    h = header(names, quality, skip_static=static, key_interval=key)
+       st.integers(1, 30), st.lists(st.floats(-2, 2), min_size=0, max_size=60), st.integers(0, 2**32 - 1),
+       st.booleans())
+def test_round_trip_gives_the_quantised_values(names, quality, fpp, static, key, jumps, seed, basis):
+    h = header(names, quality, skip_static=static, key_interval=key,
+               basis=random_basis(len(names), seed) if basis else None)
     params = walk(len(jumps), len(names), seed) + np.array(jumps)[:, None]
     params[1::3] = params[0::3][:len(params[1::3])]  # static runs
     faces = [bool(i % 5) for i in range(len(params))]
@@ -64,17 +73,20 @@ def test_round_trip_gives_the_quantised_values(names, quality, fpp, static, key,
     got = frames(events)
     assert [f.seq for f in got] == list(range(len(params)))
     for f, x, face in zip(got, params, faces):
-        np.testing.assert_array_equal(f.params, dequantise(quantise(x, h.steps), h.steps))
+        np.testing.assert_array_equal(f.params, h.values(quantise(h.coordinates(x), 1.0)))
         assert f.face_seen == face and not f.concealed
+        if not basis:
+            np.testing.assert_array_equal(f.params, dequantise(quantise(x, h.steps), h.steps))
 
 
 @settings(max_examples=40, deadline=None)
 @given(st.sampled_from(LAYOUTS), st.sampled_from(QUALITIES), st.floats(0.5, 4), st.integers(1, 32), st.booleans(),
        st.integers(1, 30), st.integers(1, 4), st.lists(st.floats(-2, 2), min_size=0, max_size=60),
-       st.integers(0, 2**32 - 1))
+       st.integers(0, 2**32 - 1), st.booleans())
 def test_decoder_outputs_the_encoders_reconstruction_within_the_dead_zone(
-        names, quality, dead_zone, fpp, static, key, divisor, jumps, seed):
-    h = header(names, quality, skip_static=static, key_interval=key, divisor=divisor)
+        names, quality, dead_zone, fpp, static, key, divisor, jumps, seed, basis):
+    h = header(names, quality, skip_static=static, key_interval=key, divisor=divisor,
+               basis=random_basis(len(names), seed) if basis else None)
     params = walk(len(jumps), len(names), seed) + np.array(jumps)[:, None]
     params[1::3] = params[0::3][:len(params[1::3])]
     sent: list[np.ndarray] = []
@@ -85,7 +97,8 @@ def test_decoder_outputs_the_encoders_reconstruction_within_the_dead_zone(
     assert len(coded) == len(sent) and not any(f.interpolated for f in coded)
     for f, r in zip(coded, sent):
         np.testing.assert_array_equal(f.params, r)
-        assert np.all(np.abs(r - params[f.seq]) <= max(dead_zone, 0.5) * h.steps * (1 + 1e-9))
+        error = np.abs(h.coordinates(r) - h.coordinates(params[f.seq]))  # in steps along the coded axes
+        assert np.all(error <= max(dead_zone, 0.5) * (1 + 1e-9))
 
 
 @given(st.lists(st.floats(-1, 1), min_size=1, max_size=40), st.floats(0.5, 4))
@@ -291,7 +304,8 @@ def test_hostile_header_is_refused_before_allocation():
 @settings(max_examples=1500, deadline=None)
 @given(st.binary(max_size=64), st.integers(0, 10_000), st.integers(0, 8), st.integers(1, 4))
 def test_fuzz_nothing_but_bitstream_error_escapes(junk, position, flips, fpp):
-    data = bytearray(frame_bytes(encode(header(skip_static=True), walk(30, 13), fpp)))
+    basis = random_basis(13) if fpp % 2 else None  # the header's basis is fuzzed too
+    data = bytearray(frame_bytes(encode(header(skip_static=True, basis=basis), walk(30, 13), fpp)))
     position %= len(data)
     for i in range(flips):
         data[(position + 37 * i) % len(data)] ^= 1 << (i % 8)
