@@ -37,7 +37,7 @@ from sender.analysis import LAYOUTS, FaceAnalyser, Smoothing
 from sender.calibrate import lip_gap
 from sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity
 from sender.sources import VideoSource
-from sender.session import stream_header
+from sender.session import sample_basis, stream_header
 from sender.enroll import MOTION_PATTERNS
 from sender.tracker import FaceTracker
 
@@ -107,6 +107,14 @@ def code(header: Header, results, frames_per_packet: int = 2) -> tuple[float, np
     return 8 * len(body) / len(results), decoded
 
 
+def first_basis(names: tuple[str, ...], layout: str, fps: float, results) -> np.ndarray | None:
+    """The coding basis fd-send would send for a stream of ``results``: from their first second's
+    frames with a face; none for the personal layout (its motion basis is decorrelated already)."""
+    if layout == "personal":
+        return None
+    return sample_basis(names, [r.params for r in results[:max(1, round(fps))] if r.landmarks is not None])
+
+
 def lag(params: np.ndarray, gap: np.ndarray, span: int = 5) -> float:
     """Frames by which theta lags the unfiltered lip gap: the cross-correlation peak, refined by a parabola."""
     a, b = ((x - x.mean()) / x.std() for x in (params, gap))
@@ -156,8 +164,9 @@ def clips(smoothing: float) -> None:
             names = analyser.names
             theta = np.array([r.params[0] for r, f in zip(results, found) if f])
             rd, bits_at = [], {}
+            basis = first_basis(names, layout, source.fps, results)
             for q in QUALITIES:
-                bits_at[q], decoded = code(stream_header(names, source.fps, FACE_ID, q), results)
+                bits_at[q], decoded = code(stream_header(names, source.fps, FACE_ID, q, basis=basis), results)
                 rd.append(f"{bits_at[q]:.0f}: {fidelity(deformer, targets, decoded, names).relative:.2f}")
             f = lambda x: f"{x.relative:.2f} ({x.error:.3f})"
             print(f"| {video.stem} | {layout} | {bits_at[DEFAULT_QUALITY]:.1f} | "
@@ -205,7 +214,8 @@ def rd(smoothing: float, patterns: tuple[int, ...], frames_per_packet: int, targ
             test = results[half:]
             targets = np.stack([r.target for r in test if r.target is not None])
             cells = []
-            header_at = lambda q: stream_header(analyser.names, source.fps, FACE_ID, q)
+            basis = first_basis(analyser.names, layout, source.fps, test)
+            header_at = lambda q: stream_header(analyser.names, source.fps, FACE_ID, q, basis=basis)
             sample = [(r.params, r.landmarks is not None) for r in test[:round(source.fps)]]
             chosen = quality_for_bitrate(header_at, sample, target_bits * source.fps, frames_per_packet, DEAD_ZONE)
             for q, target in [(q, "") for q in QUALITIES] + [(chosen, target_bits)]:
@@ -273,13 +283,14 @@ def smoothing_table() -> None:
         cells = []
         for landmarks in still.values():
             analyser, results, _, _ = analyse(base, landmarks, 25.0, "auto", smoothing)
-            bits, shown = code(stream_header(analyser.names, 25.0, FACE_ID), results[25:])
+            bits, shown = code(stream_header(analyser.names, 25.0, FACE_ID,
+                                             basis=first_basis(analyser.names, "auto", 25.0, results[25:])), results[25:])
             cells.append(f"{np.mean(np.any(np.diff(shown, axis=0) != 0, axis=1)):.0%} / {bits:.1f}")
         errors, rates = [], []
         for fps, landmarks, face in talking:
             analyser, results, _, _ = analyse(face, landmarks, fps, "personal", smoothing)
             test = results[len(landmarks) // 2:]
-            bits, decoded = code(stream_header(analyser.names, fps, FACE_ID, 2), test, 4)
+            bits, decoded = code(stream_header(analyser.names, fps, FACE_ID, 2), test, 4)  # personal: no coding basis
             targets = np.stack([r.target for r in test if r.target is not None])
             errors.append(fidelity(Deformer(face), targets, decoded, analyser.names).relative)
             rates.append(bits)

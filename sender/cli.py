@@ -65,7 +65,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--no-basis", action="store_true",
                    help="quantise each parameter on its own; by default the stream codes the principal "
                         "components of the first second's motion (head pose apart), which costs 10-20 %% "
-                        "fewer bits for the same error (docs/bitstream.md)")
+                        "fewer bits for the same error (docs/bitstream.md); the personal layout never "
+                        "does, its motion basis being one already")
     p.add_argument("--frames-per-packet", type=int, choices=range(1, 33), default=2, metavar="N",
                    help="frames sent together (1-32): fewer framing bits, N-1 frames more latency (default 2)")
     p.add_argument("--key", metavar="FILE",

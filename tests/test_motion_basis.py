@@ -146,6 +146,7 @@ def test_enrol_then_send_the_personal_layout_end_to_end(tmp_path, over):
     assert np.abs(coeffs).max() > 0.002  # the basis is used, frame by frame
     decoder = StreamDecoder()  # within the encoder's dead zone, along the header's coding axes
     decoder.feed(stream.read_bytes())
+    assert decoder.header.basis is None  # the motion basis is decorrelated already: no coding basis on top
     coded = np.array([decoder.header.coordinates(p) for p in recv["params"]])
     meant = np.array([decoder.header.coordinates(p) for p in np.load(tmp_path / "sent.npz")["params"]])
     assert np.all(np.abs(coded - meant) <= DEAD_ZONE * (1 + 1e-9))
