@@ -107,11 +107,9 @@ def code(header: Header, results, frames_per_packet: int = 2) -> tuple[float, np
     return 8 * len(body) / len(results), decoded
 
 
-def first_basis(names: tuple[str, ...], layout: str, fps: float, results) -> np.ndarray | None:
+def first_basis(names: tuple[str, ...], fps: float, results) -> np.ndarray | None:
     """The coding basis fd-send would send for a stream of ``results``: from their first second's
-    frames with a face; none for the personal layout (its motion basis is decorrelated already)."""
-    if layout == "personal":
-        return None
+    frames with a face."""
     return sample_basis(names, [r.params for r in results[:max(1, round(fps))] if r.landmarks is not None])
 
 
@@ -164,7 +162,7 @@ def clips(smoothing: float) -> None:
             names = analyser.names
             theta = np.array([r.params[0] for r, f in zip(results, found) if f])
             rd, bits_at = [], {}
-            basis = first_basis(names, layout, source.fps, results)
+            basis = first_basis(names, source.fps, results)
             for q in QUALITIES:
                 bits_at[q], decoded = code(stream_header(names, source.fps, FACE_ID, q, basis=basis), results)
                 rd.append(f"{bits_at[q]:.0f}: {fidelity(deformer, targets, decoded, names).relative:.2f}")
@@ -214,7 +212,7 @@ def rd(smoothing: float, patterns: tuple[int, ...], frames_per_packet: int, targ
             test = results[half:]
             targets = np.stack([r.target for r in test if r.target is not None])
             cells = []
-            basis = first_basis(analyser.names, layout, source.fps, test)
+            basis = first_basis(analyser.names, source.fps, test)
             header_at = lambda q: stream_header(analyser.names, source.fps, FACE_ID, q, basis=basis)
             sample = [(r.params, r.landmarks is not None) for r in test[:round(source.fps)]]
             chosen = quality_for_bitrate(header_at, sample, target_bits * source.fps, frames_per_packet, DEAD_ZONE)
@@ -284,7 +282,7 @@ def smoothing_table() -> None:
         for landmarks in still.values():
             analyser, results, _, _ = analyse(base, landmarks, 25.0, "auto", smoothing)
             bits, shown = code(stream_header(analyser.names, 25.0, FACE_ID,
-                                             basis=first_basis(analyser.names, "auto", 25.0, results[25:])), results[25:])
+                                             basis=first_basis(analyser.names, 25.0, results[25:])), results[25:])
             cells.append(f"{np.mean(np.any(np.diff(shown, axis=0) != 0, axis=1)):.0%} / {bits:.1f}")
         errors, rates = [], []
         for fps, landmarks, face in talking:

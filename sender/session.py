@@ -9,11 +9,12 @@ import numpy as np
 from codec.face_file import decode_face, read_face_bytes
 from codec.face_model import load_base_face
 from codec.deform import POSE_PARAMS
+from codec.motion_basis import BASIS_PARAMS
 from protocol.basis import principal_basis
 from protocol.quantise import DEAD_ZONE
 from protocol.secure import DEFAULT_TAG_BITS, SecureSealer
 from protocol.stream import DEFAULT_QUALITY, Header, PacketEncoder, frame_bytes, quality_for_bitrate, steps_for
-from sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing, resolve_layout
+from sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
 from sender.sources import open_source
 
 
@@ -27,8 +28,13 @@ def stream_header(names: tuple[str, ...], fps: float, face_id: str, quality: int
 
 
 def sample_basis(names: tuple[str, ...], sample: list[np.ndarray]) -> np.ndarray | None:
-    """The coding basis of ``protocol.basis`` for a sample of the call's parameters, head pose apart.
-    Steps scale alike at every level, so the basis does not depend on the level."""
+    """The coding basis of ``protocol.basis`` for a sample of the call's parameters, head pose apart;
+    None for a layout with a motion basis's coefficients, which are decorrelated already (a coding
+    basis on top saved 0-7 % on the dev clips' held-out halves and cost 0-5 % more on fd-experiment's
+    4 s clips, for 144-324 header bytes). Steps scale alike at every level, so the basis does not
+    depend on the level."""
+    if any(n in BASIS_PARAMS for n in names):
+        return None
     return principal_basis(np.array(sample), steps_for(names), [n in POSE_PARAMS for n in names])
 
 
@@ -67,10 +73,7 @@ class SendSession:
         self.analyser = FaceAnalyser(FaceTracker(), face, fps, layout, calibration_frames=round(fps),
                                      neutral=neutral, smoothing=Smoothing(smoothing))
         self._face_id, self._model, self._fpp, self._dead_zone = face.content_id, model, frames_per_packet, dead_zone
-        # a learned motion basis is decorrelated already: a coding basis on top saved 0-7 % on the dev
-        # clips' held-out halves and cost 0-5 % more on fd-experiment's 4 s clips, for 144-324 header bytes
-        self._use_basis = basis and resolve_layout(layout, face) != "personal"
-        self._bitrate, self._basis = bitrate, None
+        self._bitrate, self._use_basis, self._basis = bitrate, basis, None
         self._configure(quality)
         self.sealer = None if key is None else SecureSealer(key, tag_bits)
         self.frames: list[FrameAnalysis] = []

@@ -14,9 +14,9 @@ from codec.face_file import decode_face, encode_face, load_face_file
 from codec.face_model import load_base_face
 from codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS, MotionBasis, learn_basis
 from protocol.quantise import DEAD_ZONE
-from protocol.stream import StreamDecoder
 from sender.fit import ModelFit
 from sender.motion import FRAMES_PER_PATTERN, learn_motion
+from tests.test_cli import coded_error
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
@@ -144,12 +144,9 @@ def test_enrol_then_send_the_personal_layout_end_to_end(tmp_path, over):
     cols = slice(len(paper), len(paper) + 4)
     coeffs = recv["params"][:, cols]
     assert np.abs(coeffs).max() > 0.002  # the basis is used, frame by frame
-    decoder = StreamDecoder()  # within the encoder's dead zone, along the header's coding axes
-    decoder.feed(stream.read_bytes())
-    assert decoder.header.basis is None  # the motion basis is decorrelated already: no coding basis on top
-    coded = np.array([decoder.header.coordinates(p) for p in recv["params"]])
-    meant = np.array([decoder.header.coordinates(p) for p in np.load(tmp_path / "sent.npz")["params"]])
-    assert np.all(np.abs(coded - meant) <= DEAD_ZONE * (1 + 1e-9))
+    header, error = coded_error(stream.read_bytes(), recv["params"], np.load(tmp_path / "sent.npz")["params"])
+    assert header.basis is None  # the motion basis is decorrelated already: no coding basis on top
+    assert np.all(error <= DEAD_ZONE * (1 + 1e-9))  # within the encoder's dead zone
 
 
 def test_a_short_clip_gets_as_many_patterns_as_its_frames_teach():
