@@ -18,20 +18,22 @@ from protocol.quantise import QUALITIES
 
 
 def sample_bits_per_second(header: Header, sample: Sequence[tuple[np.ndarray, bool]], frames_per_packet: int,
-                           dead_zone: float) -> float:
-    """Bit/s of ``sample`` ((k,) params, face seen) coded as a stream of its own under ``header``
-    (without its face model or end mark: what every second of the call costs)."""
+                           dead_zone: float, seal_bytes: int = 0) -> float:
+    """Bit/s of ``sample`` ((k,) params, face seen) coded as a byte stream of its own under ``header``
+    (without its face model or end mark: what every second of the call costs). ``seal_bytes``: what
+    sealing adds to each packet (``SecureSealer.overhead``; a sealed packet also takes a sync byte)."""
     encoder = PacketEncoder(replace(header, model_size=0), frames_per_packet, dead_zone=dead_zone)
-    body = b"".join(frame_bytes(encoder.frame(params, seen)) for params, seen in sample)
-    body += frame_bytes(encoder.end()[:-1])
-    return 8 * len(body) * header.fps / len(sample)
+    packets = [p for params, seen in sample for p in encoder.frame(params, seen)] + encoder.end()[:-1]
+    size = len(frame_bytes(packets, sealed=bool(seal_bytes))) + seal_bytes * len(packets)
+    return 8 * size * header.fps / len(sample)
 
 
 def quality_for_bitrate(header_at: Callable[[int], Header], sample: Sequence[tuple[np.ndarray, bool]],
-                        bits_per_second: float, frames_per_packet: int, dead_zone: float) -> int:
+                        bits_per_second: float, frames_per_packet: int, dead_zone: float, seal_bytes: int = 0) -> int:
     """The finest level whose ``header_at(level)`` codes ``sample`` within ``bits_per_second``; the
     coarsest level if none does."""
     for quality in sorted(QUALITIES, reverse=True):
-        if sample_bits_per_second(header_at(quality), sample, frames_per_packet, dead_zone) <= bits_per_second:
+        if sample_bits_per_second(header_at(quality), sample, frames_per_packet, dead_zone,
+                                  seal_bytes) <= bits_per_second:
             return quality
     return min(QUALITIES)

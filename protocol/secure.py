@@ -96,6 +96,11 @@ class SecureSealer:
         self._keys, self._key_id = _Keys(key, self.salt), key_id(key)
         self._index = 0
 
+    @property
+    def overhead(self) -> int:
+        """Bytes sealing adds to each packet: counter and tag."""
+        return COUNTER_BYTES + self.tag_bytes
+
     def preamble(self) -> bytes:
         data = MAGIC + bytes([self.tag_bytes]) + self.salt + self._key_id
         return data + self._keys.tag(b"\0", data, self.tag_bytes)

@@ -67,6 +67,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "components of the first second's motion (head pose apart), which costs 10-20 %% "
                         "fewer bits for the same error (docs/bitstream.md); the personal layout never "
                         "does, its motion basis being one already")
+    p.add_argument("--send-every", type=int, choices=range(1, 17), default=1, metavar="N",
+                   help="send one frame in N (1-16; default 1: every frame); the receiver interpolates "
+                        "the others linearly, so the rate falls by about a third at N=2, but motion "
+                        "faster than the frames sent is lost (on the dev clips up to 19 px at N=2 for the "
+                        "paper set, docs/bitstream.md) and the receiver shows each frame N-1 frames later")
     p.add_argument("--frames-per-packet", type=int, choices=range(1, 33), default=2, metavar="N",
                    help="frames sent together (1-32): fewer framing bits, N-1 frames more latency (default 2)")
     p.add_argument("--key", metavar="FILE",
@@ -114,7 +119,8 @@ def _run(args) -> int:
     session = SendSession(source, args.quality, args.frames_per_packet, args.params,
                           args.neutral, args.smoothing, args.face, embed_face=not args.face_by_id,
                           key=key, tag_bits=args.tag_bits or DEFAULT_TAG_BITS, dead_zone=args.dead_zone,
-                          bitrate=None if args.bitrate is None else 1000 * args.bitrate, basis=not args.no_basis)
+                          bitrate=None if args.bitrate is None else 1000 * args.bitrate, basis=not args.no_basis,
+                          divisor=args.send_every)
     sink = None
     try:
         for packets in session.packets():

@@ -19,12 +19,12 @@ from sender.sources import open_source
 
 
 def stream_header(names: tuple[str, ...], fps: float, face_id: str, quality: int = DEFAULT_QUALITY,
-                  model_size: int = 0, basis: np.ndarray | None = None) -> Header:
-    """The header fd-send writes: a keyframe a second, and static-frame flags (with the dead zone a
-    still face sends unchanged frames, a flag each)."""
+                  model_size: int = 0, basis: np.ndarray | None = None, divisor: int = 1) -> Header:
+    """The header fd-send writes: a keyframe a second (of the frames sent: one in ``divisor``), and
+    static-frame flags (with the dead zone a still face sends unchanged frames, a flag each)."""
     return Header(fps, names, steps_for(names, quality), face_id, quality=quality,
-                  key_interval=max(1, min(255, round(fps))), skip_static=True, model_size=model_size,
-                  basis=basis)
+                  key_interval=max(1, min(255, round(fps / divisor))), divisor=divisor, skip_static=True,
+                  model_size=model_size, basis=basis)
 
 
 def sample_basis(names: tuple[str, ...], sample: list[np.ndarray]) -> np.ndarray | None:
@@ -51,14 +51,15 @@ class SendSession:
     to aim at instead of ``quality``: the finest level that codes the first second of the call
     within it (``protocol.rate``), chosen before the header goes out; basis: code the principal
     components of the first second's motion (``protocol.basis``) instead of each parameter (not
-    for the personal layout, whose motion basis is one already).
+    for the personal layout, whose motion basis is one already); divisor: send one frame in this many,
+    the receiver interpolates the others (fewer bits, and fast motion between sent frames is lost).
     """
 
     def __init__(self, source, quality: int = DEFAULT_QUALITY, frames_per_packet: int = 2,
                  layout: str = "auto", neutral: int | None = None, smoothing: float = 1.0,
                  face_file: str | None = None, embed_face: bool = True, key: bytes | None = None,
                  tag_bits: int = DEFAULT_TAG_BITS, dead_zone: float = DEAD_ZONE,
-                 bitrate: float | None = None, basis: bool = True) -> None:
+                 bitrate: float | None = None, basis: bool = True, divisor: int = 1) -> None:
         from sender.tracker import FaceTracker
 
         self.source = open_source(source) if isinstance(source, str) else source
@@ -73,7 +74,7 @@ class SendSession:
         self.analyser = FaceAnalyser(FaceTracker(), face, fps, layout, calibration_frames=round(fps),
                                      neutral=neutral, smoothing=Smoothing(smoothing))
         self._face_id, self._model, self._fpp, self._dead_zone = face.content_id, model, frames_per_packet, dead_zone
-        self._bitrate, self._use_basis, self._basis = bitrate, basis, None
+        self._bitrate, self._use_basis, self._basis, self._divisor = bitrate, basis, None, divisor
         self._configure(quality)
         self.sealer = None if key is None else SecureSealer(key, tag_bits)
         self.frames: list[FrameAnalysis] = []
@@ -89,7 +90,7 @@ class SendSession:
 
     def _header(self, quality: int) -> Header:
         return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model),
-                             self._basis)
+                             self._basis, self._divisor)
 
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)
@@ -106,7 +107,8 @@ class SendSession:
             quality = self.header.quality
             if first and self._bitrate is not None:
                 sample = [(r.params, r.landmarks is not None) for r in first]
-                quality = quality_for_bitrate(self._header, sample, self._bitrate, self._fpp, self._dead_zone)
+                quality = quality_for_bitrate(self._header, sample, self._bitrate, self._fpp, self._dead_zone,
+                                              0 if self.sealer is None else self.sealer.overhead)
             self._configure(quality)
             results = chain(first, results)
         for seq, result in enumerate(results):
@@ -150,7 +152,7 @@ class SendSession:
                 "quality": self.header.quality,
                 "bits_per_frame": round(bits, 1), "kbit_per_s": round(bits * self.source.fps / 1000, 3),
                 "fps": self.source.fps, "header_bytes": self.header_bytes, "layout": list(self.header.names),
-                "basis": self.header.basis is not None,
+                "basis": self.header.basis is not None, "send_every": self.header.divisor,
                 "rest_frame": None if rest is None else rest.index,
                 "tag_bits": None if self.sealer is None else 8 * self.sealer.tag_bytes,
                 "frames_per_second": round(n / max(time.perf_counter() - self._started, 1e-9), 1)}

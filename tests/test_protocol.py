@@ -350,3 +350,21 @@ def test_bitrate_choice_is_the_finest_level_that_codes_the_sample_within_the_tar
         assert quality_for_bitrate(lambda level: header(quality=level), sample, rates[q] * 0.999, 2, 1.0) == max(q - 1, 1)
     # a model carried in-band is one-off: it does not count against the rate
     assert sample_bits_per_second(header(model_size=5000), sample, 2, 1.0) == rates[3]
+
+
+@pytest.mark.parametrize("sealed, divisor", [(False, 1), (True, 1), (False, 2), (True, 3)])
+def test_bitrate_estimate_is_what_the_stream_takes(sealed, divisor):
+    """The estimate behind --bitrate counts every byte the call's stream carries per second: with
+    --key the counter, tag and sync byte of each packet, with --send-every only the frames sent."""
+    from protocol.rate import sample_bits_per_second
+    from protocol.secure import SecureSealer
+
+    h = header(divisor=divisor, key_interval=25 // divisor, skip_static=True)
+    sample = [(p, True) for p in walk(25, len(PAPER_PARAMS), seed=4)]
+    sealer = SecureSealer(bytes(32)) if sealed else None
+    estimate = sample_bits_per_second(h, sample, 2, 1.0, sealer.overhead if sealed else 0)
+    encoder = PacketEncoder(h, 2, dead_zone=1.0)
+    packets = [p for params, seen in sample for p in encoder.frame(params, seen)] + encoder.end()[:-1]
+    if sealed:
+        packets = sealer.seal_all(packets)
+    assert estimate == 8 * len(frame_bytes(packets, sealed))  # a second of frames: bits are bit/s
