@@ -39,6 +39,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--faces", nargs="+", default=["generic", "own"], choices=("generic", "own"),
                    help="our receiver's face: the generic shaded one, and/or the speaker's own model made "
                         "by fd-enroll from the clip (default both)")
+    p.add_argument("--send-every", type=int, nargs="+", default=[1], choices=range(1, 17), metavar="N",
+                   help="our frame-rate divisors (fd-send --send-every: one frame in N is sent, the receiver "
+                        "interpolates; default 1); runs with N > 1 are named ours-<layout>-every<N>")
     p.add_argument("--baselines", nargs="+", default=["x264", "x265", "av1"], choices=("x264", "x265", "av1"),
                    help="conventional codecs (default all three)")
     p.add_argument("--bitrates", type=float, nargs="+", default=[8, 12, 16, 24, 32, 48, 64, 96], metavar="KBPS",
@@ -69,9 +72,10 @@ def _run(args) -> int:
             clip = prepare(path, size, work, args.seconds)
             say(f"fd-experiment: {clip.name} at {size}x{size}: {len(clip.frames)} frames at {clip.fps:g} fps")
             prepared.append({"name": clip.name, "path": str(clip.path), "fps": clip.fps})
-    tasks = [{**c, "kind": "ours", "layout": layout, "quality": q, "own": face == "own", "work": str(work)}
+    tasks = [{**c, "kind": "ours", "layout": layout, "quality": q, "own": face == "own", "every": n,
+              "work": str(work)}
              for c in prepared for face in args.faces for layout in args.layouts for q in args.qualities
-             if face == "own" or layout != "personal"]
+             for n in args.send_every if face == "own" or layout != "personal"]
     tasks += [{**c, "kind": codec, "bps": int(kbps * 1000)}
               for c in prepared for codec in args.baselines for kbps in args.bitrates]
     rows = []
@@ -125,7 +129,7 @@ def execute(task: dict) -> dict:
 
     clip = _clip(task["name"], task["path"], task["fps"])
     if task["kind"] == "ours":
-        return run_ours(clip, task["quality"], task["layout"], Path(task["work"]), task["own"])[0]
+        return run_ours(clip, task["quality"], task["layout"], Path(task["work"]), task["own"], task["every"])[0]
     return run_baseline(clip, task["kind"], task["bps"])[0]
 
 

@@ -38,7 +38,7 @@ def plot(rows: list[dict], out: Path) -> list[Path]:
 
     written = []
     codecs = sorted({r["codec"] for r in rows})
-    colours = dict(zip(codecs, plt.cm.tab10(np.linspace(0, 1, 10))))
+    colours = dict(zip(codecs, plt.cm.tab20(np.arange(len(codecs)) % 20)))
     for size in sorted({r["size"] for r in rows}):
         for metric, (label, _) in PLOTTED.items():
             fig, ax = plt.subplots(figsize=(7, 4.5))

@@ -52,16 +52,18 @@ def enroll(clip: Clip, work: Path) -> Path:
     return path
 
 
-def run_ours(clip: Clip, quality: int, layout: str, work: Path, own_face: bool = False) -> tuple[dict, list]:
+def run_ours(clip: Clip, quality: int, layout: str, work: Path, own_face: bool = False,
+             every: int = 1) -> tuple[dict, list]:
     """fd-send then fd-recv on the clip's crop, with the generic face or the speaker's own model
-    (shared beforehand: its bytes count as one-off, with the stream header); returns the row and
-    the decoded frames."""
+    (shared beforehand: its bytes count as one-off, with the stream header), sending one frame in
+    ``every``; returns the row and the decoded frames."""
     size = clip.frames[0].shape[0]
-    name = f"ours-{layout}" + ("-own" if own_face else "")
+    name = f"ours-{layout}" + ("-own" if own_face else "") + (f"-every{every}" if every > 1 else "")
     stream = Path(work) / f"{clip.name}_{size}_{name}_q{quality}.fd"
     face = ["--face", str(enroll(clip, work))] if own_face else []
     started = time.perf_counter()
-    _tool("sender.cli", str(clip.path), "--quality", str(quality), "--params", layout, "-o", str(stream), "-q",
+    _tool("sender.cli", str(clip.path), "--quality", str(quality), "--params", layout, "--send-every", str(every),
+          "-o", str(stream), "-q",
           *(face + ["--face-by-id"] if own_face else []))
     encode_s = time.perf_counter() - started
     started = time.perf_counter()

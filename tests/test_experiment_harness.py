@@ -47,6 +47,18 @@ def test_our_bitrate_is_the_stream_file_without_its_header(results):
         assert row["bitrate_bps"] == pytest.approx(8 * row["stream_bytes"] * row["fps"] / row["frames"])
 
 
+def test_sending_one_frame_in_two_is_a_run_of_its_own(results):
+    from experiment.runs import run_ours
+
+    out, rows = results
+    clip = _clip("grid_bbaf2n", str(out / "work" / "grid_bbaf2n_128.mp4"), rows[0]["fps"])
+    row, decoded = run_ours(clip, 3, "paper", out / "work", every=2)
+    every_frame = next(r for r in rows if (r["codec"], r["setting"]) == ("ours-paper", "q3"))
+    assert (row["codec"], row["setting"], len(decoded)) == ("ours-paper-every2", "q3", 50)
+    assert row["bitrate_bps"] < every_frame["bitrate_bps"]
+    assert (out / "work" / "grid_bbaf2n_128_ours-paper-every2_q3.fd").exists()
+
+
 def test_baseline_bitrate_is_its_coded_bytes(results):
     out, rows = results
     row = next(r for r in rows if r["codec"] == "x264")
