@@ -73,7 +73,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "faster than the frames sent is lost (on the dev clips up to 19 px at N=2 for the "
                         "paper set, docs/bitstream.md) and the receiver shows each frame N-1 frames later")
     p.add_argument("--frames-per-packet", type=int, choices=range(1, 33), default=2, metavar="N",
-                   help="frames sent together (1-32): fewer framing bits, N-1 frames more latency (default 2)")
+                   help="frames sent together (1-32): fewer framing bits, N-1 frames more latency (sent frames: times --send-every) (default 2)")
     p.add_argument("--key", metavar="FILE",
                    help="encrypt and authenticate every packet (face model included) with this pre-shared "
                         "key (fd-keygen); costs 6 bytes per packet at the default tag (docs/security.md); "
