@@ -37,7 +37,7 @@ from sender.analysis import LAYOUTS, FaceAnalyser, Smoothing
 from sender.calibrate import lip_gap
 from sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity
 from sender.sources import VideoSource
-from sender.session import sample_basis, stream_header
+from sender.session import first_basis, rate_sample, stream_header
 from sender.enroll import MOTION_PATTERNS
 from sender.tracker import FaceTracker
 
@@ -105,12 +105,6 @@ def code(header: Header, results, frames_per_packet: int = 2) -> tuple[float, np
         raise RuntimeError(f"the stream decoded to {len(frames)} of {len(results)} frames")
     decoded = np.stack([f.params for f, r in zip(frames, results) if r.target is not None])
     return 8 * len(body) / len(results), decoded
-
-
-def first_basis(names: tuple[str, ...], fps: float, results) -> np.ndarray | None:
-    """The coding basis fd-send would send for a stream of ``results``: from their first second's
-    frames with a face."""
-    return sample_basis(names, [r.params for r in results[:max(1, round(fps))] if r.landmarks is not None])
 
 
 def lag(params: np.ndarray, gap: np.ndarray, span: int = 5) -> float:
@@ -214,8 +208,8 @@ def rd(smoothing: float, patterns: tuple[int, ...], frames_per_packet: int, targ
             cells = []
             basis = first_basis(analyser.names, source.fps, test)
             header_at = lambda q: stream_header(analyser.names, source.fps, FACE_ID, q, basis=basis)
-            sample = [(r.params, r.landmarks is not None) for r in test[:round(source.fps)]]
-            chosen = quality_for_bitrate(header_at, sample, target_bits * source.fps, frames_per_packet, DEAD_ZONE)
+            chosen = quality_for_bitrate(header_at, rate_sample(source.fps, test), target_bits * source.fps,
+                                         frames_per_packet, DEAD_ZONE)
             for q, target in [(q, "") for q in QUALITIES] + [(chosen, target_bits)]:
                 bits, decoded = code(header_at(q), test, frames_per_packet)
                 fid = fidelity(deformer, targets, decoded, analyser.names).relative

@@ -38,6 +38,23 @@ def sample_basis(names: tuple[str, ...], sample: list[np.ndarray]) -> np.ndarray
     return principal_basis(np.array(sample), steps_for(names), [n in POSE_PARAMS for n in names])
 
 
+def first_second(fps: float) -> int:
+    """Frames in the call's first second: the sender holds them to find the rest face, and learns
+    the coding basis and the --bitrate level from them before the header goes out."""
+    return max(1, round(fps))
+
+
+def first_basis(names: tuple[str, ...], fps: float, results: list[FrameAnalysis]) -> np.ndarray | None:
+    """The coding basis fd-send sends for a call that starts with ``results``: from its first
+    second's frames with a face."""
+    return sample_basis(names, [r.params for r in results[:first_second(fps)] if r.landmarks is not None])
+
+
+def rate_sample(fps: float, results: list[FrameAnalysis]) -> list[tuple[np.ndarray, bool]]:
+    """(parameters, face seen) of the call's first second: what --bitrate codes at every level."""
+    return [(r.params, r.landmarks is not None) for r in results[:first_second(fps)]]
+
+
 class SendSession:
     """Opens the source and the models; :meth:`packets` yields the packets as frames are analysed.
 
@@ -101,14 +118,14 @@ class SendSession:
         then what each frame completes, then the end mark."""
         results = self.analyser.run(self.source.frames())
         if self._bitrate is not None or self._use_basis:  # the analyser holds the first second anyway
-            first = list(islice(results, max(1, round(self.source.fps))))
+            fps = self.source.fps
+            first = list(islice(results, first_second(fps)))
             if self._use_basis:
-                self._basis = sample_basis(self.analyser.names, [r.params for r in first if r.landmarks is not None])
+                self._basis = first_basis(self.analyser.names, fps, first)
             quality = self.header.quality
             if first and self._bitrate is not None:
-                sample = [(r.params, r.landmarks is not None) for r in first]
-                quality = quality_for_bitrate(self._header, sample, self._bitrate, self._fpp, self._dead_zone,
-                                              0 if self.sealer is None else self.sealer.overhead)
+                quality = quality_for_bitrate(self._header, rate_sample(fps, first), self._bitrate, self._fpp,
+                                              self._dead_zone, 0 if self.sealer is None else self.sealer.overhead)
             self._configure(quality)
             results = chain(first, results)
         for seq, result in enumerate(results):
