@@ -52,7 +52,7 @@ def bench(path: Path, layout: tuple[str, ...], quality: int, dead_zone: float, a
     first = first_second(fps)  # the basis comes from the first second, as fd-send makes it
     basis = None if args.no_basis else sample_basis(layout, list(params[:first][d["found"][:first]]))
     header = Header(fps, layout, steps_for(layout, quality), "00" * 32, quality=quality,
-                    divisor=args.divisor, skip_static=not args.no_static, basis=basis)
+                    divisor=args.divisor, skip_static=not args.no_static, basis=basis, trained=not args.untrained)
     enc = PacketEncoder(header, args.frames_per_packet, dead_zone=dead_zone)
     head = enc.header()
     packets, sent = [], {}
@@ -94,10 +94,13 @@ def main() -> None:
     p.add_argument("--no-static", action="store_true", help="static-frame flags off (fd-send sets them)")
     p.add_argument("--no-basis", action="store_true",
                    help="code each parameter on its own (fd-send --no-basis), not the first second's principal axes")
+    p.add_argument("--untrained", action="store_true",
+                   help="format version 3/4's entropy models (flat counts), not version 5's trained ones")
     args = p.parse_args()
     deformer = Deformer(load_base_face())
     print(f"frames per packet: {args.frames_per_packet}, divisor {args.divisor}, static flags "
-          f"{'off' if args.no_static else 'on'}, basis {'off' if args.no_basis else 'on'}; "
+          f"{'off' if args.no_static else 'on'}, basis {'off' if args.no_basis else 'on'}, "
+          f"{'untrained' if args.untrained else 'trained'} models; "
           f"vertex error in px for a face {FACE_PX:.0f} px tall")
     print("| clip | layout | quality | dead zone | payload bits/frame | framing bits/frame | total bits/frame | "
           "bit/s | max vertex err px | rms vertex err px | max angle err deg | encode fps | decode fps |")

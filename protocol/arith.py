@@ -17,12 +17,15 @@ _COUNT_LIMIT = 60  # halve counts beyond this so the model follows drift
 
 
 class AdaptiveBit:
-    """Probability of a 0 from counts (Krichevsky-Trofimov): learns in a handful of symbols."""
+    """Probability of a 0 from counts (Krichevsky-Trofimov): learns in a handful of symbols.
+
+    ``n0``, ``n1``: starting counts (trained ones spare the first symbols' learning).
+    """
 
     __slots__ = ("n0", "n1")
 
-    def __init__(self) -> None:
-        self.n0 = self.n1 = 0
+    def __init__(self, n0: int = 0, n1: int = 0) -> None:
+        self.n0, self.n1 = n0, n1
 
     def p0(self) -> int:
         """P(bit = 0) in units of 2**-16, always inside (0, 2**16)."""

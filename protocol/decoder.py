@@ -15,6 +15,7 @@ from protocol.entropy import GroupState
 from protocol.events import Damage, End, Frame, Model, Stats
 from protocol.framing import DELTA, END, HEADER, KEY, MODEL, SYNC, is_delta, packet_size, parse, read_varint
 from protocol.header import Header, parse_header
+from protocol.priors import models_for
 
 MAX_SEEK = 1 << 16  # bytes searched for a header before the input is declared foreign
 _MAX_FRAME = 1 << 40
@@ -106,7 +107,7 @@ class PacketDecoder:
         if coded < self._next or self.ended:
             self.stats.duplicates += 1
             return []
-        group = GroupState(len(self.header.names), self.header.skip_static)
+        group = GroupState(len(self.header.names), self.header.skip_static, models_for(self.header))
         dec = Decoder(packet.body[pos:])
         decoded = [group.decode_key(dec)] + [group.decode_delta(dec) for _ in range(packet.count - 1)]
         events = self.damage("packets lost before a keyframe") if coded > self._next else []

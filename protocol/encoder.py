@@ -14,6 +14,7 @@ from protocol.arith import Encoder
 from protocol.entropy import GroupState
 from protocol.framing import DELTA, END, HEADER, KEY, MAX_COUNT, MODEL, SYNC, build, is_delta, varint
 from protocol.header import Header, encode_header
+from protocol.priors import models_for
 from protocol.quantise import DEAD_ZONE, hold_or_round
 
 MODEL_CHUNK = 1024
@@ -40,6 +41,7 @@ class PacketEncoder:
         if len(model) != header.model_size:
             raise BitstreamError(f"header announces {header.model_size} model bytes, got {len(model)}")
         self._h, self._fpp, self._model, self._dead_zone = header, frames_per_packet, model, dead_zone
+        self._new_bit = models_for(header)
         self._frames = 0
         self._held: list[int] | None = None
         #: (k,) float64 the decoder outputs for the last coded frame (None before one): exactly its Frame.params.
@@ -69,7 +71,7 @@ class PacketEncoder:
         self._held, self.reconstruction = values, self._h.values(values)
         face = bool(face_seen)
         if coded % self._h.key_interval == 0:
-            self._group = GroupState(len(values), self._h.skip_static)
+            self._group = GroupState(len(values), self._h.skip_static, self._new_bit)
             self._start(KEY, coded)
             self._group.encode_key(self._coder, values, face)
             self._active += 1

@@ -9,14 +9,30 @@ parameter's residual in this frame), so still mouths cost a fraction of a bit an
 speech costs what it must. All models live in one :class:`GroupState` that is
 reset at every keyframe: a lost packet can never corrupt decoding past the next
 keyframe.
+
+Version 5 adds what a second of data cannot learn on its own: the zero flag and
+the prefix also depend on the value's axis (the coding basis puts the largest
+motion first), the first bit below a magnitude's leading one has a model, and
+every model starts from trained counts (``protocol/priors.py``) instead of
+from nothing, so the reset at each keyframe costs little.
 """
+
+from collections.abc import Callable
 
 from codec.errors import BitstreamError
 from protocol.arith import AdaptiveBit, Decoder, Encoder
 
 MAX_EXP = 24  # magnitudes below 2**25 steps; a longer prefix can only be damage
 _PREFIX_MODELS = 8
+_MANTISSA_MODELS = 8
 _CLASSES = 4
+_AXIS_GROUPS = (0, 1, 2, 3, 4, 4, 4, 4, 5)  # by axis, the last for axes 8 and up
+#: Makes the bit model named by a key such as ("delta", "prefix", axis group, class, position).
+NewBit = Callable[[tuple], AdaptiveBit]
+
+
+def _flat(key: tuple) -> AdaptiveBit:
+    return AdaptiveBit()
 
 
 def _activity_class(last: int, neighbour: int) -> int:
@@ -25,16 +41,32 @@ def _activity_class(last: int, neighbour: int) -> int:
 
 
 class _IntModels:
-    """Models of residuals: zero flag and prefix per activity class, sign per previous sign."""
+    """Models of one kind of value ("key": keyframe values, "delta": residuals).
 
-    def __init__(self) -> None:
-        self.zero = [AdaptiveBit() for _ in range(_CLASSES)]
-        self.sign = [AdaptiveBit() for _ in range(3)]
-        self.prefix = [[AdaptiveBit() for _ in range(_PREFIX_MODELS)] for _ in range(_CLASSES)]
+    Zero flag and prefix per axis group and activity class, sign per previous
+    sign, the first mantissa bit per exponent. ``new_bit`` None: version 2-4's
+    models (flat, one axis group, mantissa bits at 1/2).
+    """
+
+    def __init__(self, kind: str, new_bit: NewBit | None) -> None:
+        groups = 1 if new_bit is None else max(_AXIS_GROUPS) + 1
+        make = _flat if new_bit is None else new_bit
+        self.zero = [[make((kind, "zero", g, c)) for c in range(_CLASSES)] for g in range(groups)]
+        self.sign = [make((kind, "sign", s)) for s in range(3)]
+        self.prefix = [[[make((kind, "prefix", g, c, i)) for i in range(_PREFIX_MODELS)]
+                        for c in range(_CLASSES)] for g in range(groups)]
+        self.mantissa = None if new_bit is None else [make((kind, "mantissa", e)) for e in range(_MANTISSA_MODELS)]
+
+    def group(self, axis: int) -> int:
+        return 0 if len(self.zero) == 1 else _AXIS_GROUPS[min(axis, len(_AXIS_GROUPS) - 1)]
+
+    def first_mantissa(self, exp: int) -> AdaptiveBit | None:
+        return None if self.mantissa is None else self.mantissa[min(exp, _MANTISSA_MODELS) - 1]
 
 
-def _encode_int(enc: Encoder, value: int, m: _IntModels, cls: int, last: int) -> None:
-    enc.bit(value != 0, m.zero[cls])
+def _encode_int(enc: Encoder, value: int, m: _IntModels, axis: int, cls: int, last: int) -> None:
+    g = m.group(axis)
+    enc.bit(value != 0, m.zero[g][cls])
     if value == 0:
         return
     enc.bit(value < 0, m.sign[(last > 0) - (last < 0) + 1])
@@ -42,54 +74,57 @@ def _encode_int(enc: Encoder, value: int, m: _IntModels, cls: int, last: int) ->
     exp = mag.bit_length() - 1
     if exp > MAX_EXP:
         raise BitstreamError(f"value {value} out of range for the stream's steps")
-    prefix = m.prefix[cls]
+    prefix = m.prefix[g][cls]
     for i in range(exp):
         enc.bit(1, prefix[min(i, _PREFIX_MODELS - 1)])
     if exp < MAX_EXP:
         enc.bit(0, prefix[min(exp, _PREFIX_MODELS - 1)])
     for i in range(exp - 1, -1, -1):
-        enc.bit((mag >> i) & 1)
+        enc.bit((mag >> i) & 1, m.first_mantissa(exp) if i == exp - 1 else None)
 
 
-def _decode_int(dec: Decoder, m: _IntModels, cls: int, last: int) -> int:
-    if not dec.bit(m.zero[cls]):
+def _decode_int(dec: Decoder, m: _IntModels, axis: int, cls: int, last: int) -> int:
+    g = m.group(axis)
+    if not dec.bit(m.zero[g][cls]):
         return 0
     negative = dec.bit(m.sign[(last > 0) - (last < 0) + 1])
-    prefix = m.prefix[cls]
+    prefix = m.prefix[g][cls]
     exp = 0
     while exp < MAX_EXP and dec.bit(prefix[min(exp, _PREFIX_MODELS - 1)]):
         exp += 1
     mag = 1
-    for _ in range(exp):
-        mag = (mag << 1) | dec.bit()
+    for i in range(exp - 1, -1, -1):
+        mag = (mag << 1) | dec.bit(m.first_mantissa(exp) if i == exp - 1 else None)
     return -mag if negative else mag
 
 
 class GroupState:
     """What both ends hold between keyframes: last values, last residuals and all models.
 
-    ``k`` parameters; ``static`` adds a per-frame "same as before" flag.
+    ``k`` parameters; ``static`` adds a per-frame "same as before" flag;
+    ``new_bit`` makes version 5's models (None: version 2-4's).
     """
 
-    def __init__(self, k: int, static: bool) -> None:
+    def __init__(self, k: int, static: bool, new_bit: NewBit | None = None) -> None:
         self.k, self.static = k, static
         self.values: list[int] = [0] * k
         self.face = True
         self._residuals = [0] * k
-        self._delta = _IntModels()  # shared: learns within one second, per-parameter models do not
-        self._absolute = _IntModels()  # keyframe values, shared: there is one keyframe per group
-        self._face = [AdaptiveBit(), AdaptiveBit()]
-        self._static = AdaptiveBit()
+        self._delta = _IntModels("delta", new_bit)  # shared across parameters: one second is too short to learn each
+        self._absolute = _IntModels("key", new_bit)  # keyframe values: one keyframe per group
+        make = _flat if new_bit is None else new_bit
+        self._face = [make(("frame", "face", f)) for f in range(2)]
+        self._static = make(("frame", "static"))
 
     def encode_key(self, enc: Encoder, values: list[int], face: bool) -> None:
         enc.bit(face, self._face[1])
-        for v in values:
-            _encode_int(enc, v, self._absolute, 0, 0)
+        for j, v in enumerate(values):
+            _encode_int(enc, v, self._absolute, j, 0, 0)
         self.values, self.face = list(values), face
 
     def decode_key(self, dec: Decoder) -> tuple[list[int], bool]:
         self.face = bool(dec.bit(self._face[1]))
-        self.values = [_decode_int(dec, self._absolute, 0, 0) for _ in range(self.k)]
+        self.values = [_decode_int(dec, self._absolute, j, 0, 0) for j in range(self.k)]
         return list(self.values), self.face
 
     def is_static(self, values: list[int], face: bool) -> bool:
@@ -108,7 +143,7 @@ class GroupState:
         for j, v in enumerate(values):
             r = v - self.values[j]
             last = self._residuals[j]
-            _encode_int(enc, r, self._delta, _activity_class(last, neighbour), last)
+            _encode_int(enc, r, self._delta, j, _activity_class(last, neighbour), last)
             self._residuals[j] = neighbour = r
         self.values = list(values)
 
@@ -120,7 +155,7 @@ class GroupState:
         neighbour = 0
         for j in range(self.k):
             last = self._residuals[j]
-            r = _decode_int(dec, self._delta, _activity_class(last, neighbour), last)
+            r = _decode_int(dec, self._delta, j, _activity_class(last, neighbour), last)
             self.values[j] += r
             self._residuals[j] = neighbour = r
         return list(self.values), self.face

@@ -15,10 +15,11 @@ from protocol.framing import read_varint, varint
 from protocol.quantise import dequantise
 
 MAGIC = b"FD"
-VERSION = 3
+VERSION = 5
 #: Version 2 differs only in framing (every packet long, and after a sync byte); version 4 adds a
-#: coding basis to version 3's header, and is written only when the header has one.
-READABLE = (2, 3, 4)
+#: coding basis to version 3's header; version 5 adds trained entropy models (protocol/entropy.py)
+#: and carries a basis or not. Versions 3 and 4 are still written for ``Header(trained=False)``.
+READABLE = (2, 3, 4, 5)
 BASIS_VERSION = 4
 MAX_NAMES = 64
 MAX_NAME = 32
@@ -40,7 +41,9 @@ class Header:
     skip_static: frames equal to the previous cost a flag only; model_size:
     bytes of face model carried after the header (0: referenced by face_id only);
     basis: (k, k) int8 coding axes (``protocol.basis``) or None: the coded values are then
-    coordinates along the axes, in steps, instead of one value per parameter.
+    coordinates along the axes, in steps, instead of one value per parameter;
+    trained: the entropy models start from trained counts (version 5), else from
+    nothing (versions 2-4, what older decoders read).
     """
 
     fps: float
@@ -54,6 +57,7 @@ class Header:
     skip_static: bool = False
     model_size: int = 0
     basis: np.ndarray | None = None
+    trained: bool = True
 
     def __post_init__(self) -> None:
         names, steps = self.names, np.asarray(self.steps, dtype=np.float64)
@@ -93,7 +97,7 @@ class Header:
 
 def encode_header(h: Header) -> bytes:
     flags = _FLAG_F3_WITH_JAW * h.f3_with_jaw | _FLAG_STATIC * h.skip_static | _FLAG_BASIS * (h.basis is not None)
-    version = VERSION if h.basis is None else BASIS_VERSION
+    version = VERSION if h.trained else 3 if h.basis is None else BASIS_VERSION
     out = bytearray(MAGIC + bytes([version, flags, h.quality, h.key_interval, h.divisor]))
     out += varint(round(h.fps * 1000)) + bytes.fromhex(h.face_id) + varint(h.model_size)
     out.append(len(h.names))
@@ -113,7 +117,7 @@ def parse_header(body: bytes) -> Header:
         raise BitstreamError(f"unsupported stream version {body[2]} (this decoder reads "
                              f"{', '.join(map(str, READABLE))})")
     flags, quality, key_interval, divisor = body[3:7]
-    if bool(flags & _FLAG_BASIS) != (body[2] == BASIS_VERSION):
+    if body[2] < VERSION and bool(flags & _FLAG_BASIS) != (body[2] == BASIS_VERSION):
         raise BitstreamError(f"stream version {body[2]} with{'' if flags & _FLAG_BASIS else 'out'} a basis")
     fps_milli, pos = _varint(body, 7, 1_000_000)
     if pos + 32 > len(body):
@@ -142,7 +146,7 @@ def parse_header(body: bytes) -> Header:
     if basis_bytes:
         basis = np.frombuffer(body, dtype=np.int8, count=basis_bytes, offset=pos + 8 * count).reshape(count, count)
     return Header(fps_milli / 1000, tuple(names), steps, face_id, bool(flags & _FLAG_F3_WITH_JAW), quality,
-                  key_interval, divisor, bool(flags & _FLAG_STATIC), model_size, basis)
+                  key_interval, divisor, bool(flags & _FLAG_STATIC), model_size, basis, body[2] == VERSION)
 
 
 def _varint(body: bytes, pos: int, limit: int) -> tuple[int, int]:

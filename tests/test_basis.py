@@ -1,5 +1,7 @@
 """The coding basis: principal axes from a sample, carried in the header, and what they save."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -51,12 +53,14 @@ def test_same_sample_same_bytes_and_a_still_face_gets_none():
     assert principal_basis(sample[:1], steps_for(NAMES), POSE) is None
 
 
-def test_a_header_with_a_basis_is_version_4_and_reads_back():
+@pytest.mark.parametrize("trained, versions", [(True, (5, 5)), (False, (4, 3))])
+def test_a_header_with_a_basis_reads_back(trained, versions):
+    """Version 5 carries a basis or not; without trained models a basis makes version 4, none version 3."""
     basis = principal_basis(talking(), steps_for(NAMES), POSE)
-    body = encode_header(header(basis))
-    assert body[2] == 4 and encode_header(header())[2] == 3
+    body = encode_header(replace(header(basis), trained=trained))
+    assert (body[2], encode_header(replace(header(), trained=trained))[2]) == versions
     back = parse_header(body)
-    assert back == header(basis)
+    assert back == replace(header(basis), trained=trained) and back.trained == trained
     np.testing.assert_array_equal(back.basis, basis)
 
 

@@ -1,5 +1,7 @@
 """The stream format: exact round trip, any chunking, survival of damage, bounded refusal of hostile input."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -61,10 +63,10 @@ def frames(events) -> list[Frame]:
 @settings(max_examples=40, deadline=None)
 @given(st.sampled_from(LAYOUTS), st.sampled_from(QUALITIES), st.integers(1, 32), st.booleans(),
        st.integers(1, 30), st.lists(st.floats(-2, 2), min_size=0, max_size=60), st.integers(0, 2**32 - 1),
-       st.booleans())
-def test_round_trip_gives_the_quantised_values(names, quality, fpp, static, key, jumps, seed, basis):
+       st.booleans(), st.booleans())
+def test_round_trip_gives_the_quantised_values(names, quality, fpp, static, key, jumps, seed, basis, trained):
     h = header(names, quality, skip_static=static, key_interval=key,
-               basis=random_basis(len(names), seed) if basis else None)
+               basis=random_basis(len(names), seed) if basis else None, trained=trained)
     params = walk(len(jumps), len(names), seed) + np.array(jumps)[:, None]
     params[1::3] = params[0::3][:len(params[1::3])]  # static runs
     faces = [bool(i % 5) for i in range(len(params))]
@@ -175,6 +177,15 @@ def test_golden_stream_bytes_are_stable():
     assert frame_bytes(encode(golden_header(), GOLDEN_PARAMS)).hex() == GOLDEN
 
 
+def test_a_version_3_stream_is_still_written_and_read():
+    """Version 3 (flat entropy models) is what an untrained header writes, and what older decoders read."""
+    old = replace(golden_header(), trained=False)
+    assert frame_bytes(encode(old, GOLDEN_PARAMS)).hex() == GOLDEN_V3
+    events, dec = decode(bytes.fromhex(GOLDEN_V3))
+    assert dec.header == old and not dec.stats.damaged
+    np.testing.assert_array_equal([f.params for f in frames(events)], GOLDEN_PARAMS)
+
+
 def test_a_version_2_stream_still_decodes():
     """Version 2 had a sync byte and a length before every delta: the same input then gave these bytes."""
     events, dec = decode(bytes.fromhex(GOLDEN_V2))
@@ -198,9 +209,12 @@ def test_deltas_have_no_sync_byte_and_small_ones_are_short():
                                   [f.params for f in frames(decode(frame_bytes(encode(header(), walk(60, 13))))[0])])
 
 
-GOLDEN = ("fd004646440300030401a8c301abababababababababababababababababababababababababababababababab0002"
-          "057468657461037632783fd00000000000003f60624dd2f1a9fcb2908b61fd4002008015b4a2bc40fca1401ca1a2d7"
-          "fd400204d8028dfd8001059452")
+GOLDEN = ("fd004646440500030401a8c301abababababababababababababababababababababababababababababababab0002"
+          "057468657461037632783fd00000000000003f60624dd2f1a9fc376cddecfd400200080534a17623a110aba18237"
+          "fd40030437804af2fd8001059452")
+GOLDEN_V3 = ("fd004646440300030401a8c301abababababababababababababababababababababababababababababababab0002"
+             "057468657461037632783fd00000000000003f60624dd2f1a9fcb2908b61fd4002008015b4a2bc40fca1401ca1a2d7"
+             "fd400204d8028dfd8001059452")
 GOLDEN_V2 = ("fd004646440200030401a8c301abababababababababababababababababababababababababababababababab0002"
              "057468657461037632783fd00000000000003f60624dd2f1a9fcd7ad1343fd4002008015b4fd6002bc4095fd6001403b"
              "fd6001a28dfd400204d8028dfd8001059452")

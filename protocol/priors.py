@@ -1,0 +1,46 @@
+"""Trained starting counts of version 5's entropy models, one table per quality level.
+
+The counts are part of the format: a decoder must start each keyframe's models
+from the same counts as the encoder did, so ``priors.json`` is checked against
+:data:`SHA256` when it is loaded and never changes within a version. Where they
+come from (fd-send's parameters of the dev clips, each model's counts scaled to
+a total of 16 so the data still rules after a second) and what they save:
+benchmarks/train_priors.py and docs/bitstream.md.
+"""
+
+import hashlib
+import json
+from functools import cache
+from pathlib import Path
+
+from protocol.arith import AdaptiveBit
+from protocol.entropy import NewBit
+from protocol.header import Header
+from protocol.quantise import DEFAULT_QUALITY, QUALITIES
+
+SHA256 = "508993548c4bc135627d61a1967540e06005a22ffefc352c0dca594ac5c67cc4"
+PATH = Path(__file__).with_name("priors.json")
+
+
+@cache
+def tables() -> dict[str, dict[str, list[int]]]:
+    """{quality level: {model key name: [n0, n1]}}, checked against :data:`SHA256`."""
+    data = PATH.read_bytes()
+    if hashlib.sha256(data).hexdigest() != SHA256:
+        raise RuntimeError(f"{PATH} is not the table of this format version (reinstall facedeform)")
+    return json.loads(data)
+
+
+def key_name(key: tuple) -> str:
+    """A model's key as the table names it, e.g. ``delta.prefix.0.2.1``."""
+    return ".".join(map(str, key))
+
+
+def models_for(header: Header, levels: dict[str, dict[str, list[int]]] | None = None) -> NewBit | None:
+    """What a stream's :class:`protocol.entropy.GroupState` makes its models with: the header
+    level's trained counts from ``levels`` (default: :func:`tables`; custom steps take the default
+    level's), None before version 5."""
+    if not header.trained:
+        return None
+    table = (levels or tables())[str(header.quality if header.quality in QUALITIES else DEFAULT_QUALITY)]
+    return lambda key: AdaptiveBit(*table.get(key_name(key), (0, 0)))
