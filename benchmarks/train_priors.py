@@ -8,6 +8,9 @@ over all dumps at that level, scaled to a total of 16: enough to spare the
 first symbols' learning after each keyframe, few enough that the call's own
 data takes over within the second.
 
+Dumps: ``fd-send CLIP -o /dev/null --dump CLIP.LAYOUT.npz --params LAYOUT`` for each dev clip
+and LAYOUT in paper, mouth, full (fd-send's other options at their defaults).
+
 ``--check`` codes each dump three ways (2 frames per packet) and prints a
 Markdown table of stream bits per frame: version 4's models (flat counts, no axis groups), version 5
 with the table trained on every dump, and with one trained on the other clips'

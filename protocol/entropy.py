@@ -49,6 +49,7 @@ class _IntModels:
     """
 
     def __init__(self, kind: str, new_bit: NewBit | None) -> None:
+        self._axis_groups = None if new_bit is None else _AXIS_GROUPS
         groups = 1 if new_bit is None else max(_AXIS_GROUPS) + 1
         make = _flat if new_bit is None else new_bit
         self.zero = [[make((kind, "zero", g, c)) for c in range(_CLASSES)] for g in range(groups)]
@@ -58,7 +59,7 @@ class _IntModels:
         self.mantissa = None if new_bit is None else [make((kind, "mantissa", e)) for e in range(_MANTISSA_MODELS)]
 
     def group(self, axis: int) -> int:
-        return 0 if len(self.zero) == 1 else _AXIS_GROUPS[min(axis, len(_AXIS_GROUPS) - 1)]
+        return 0 if self._axis_groups is None else self._axis_groups[min(axis, len(self._axis_groups) - 1)]
 
     def first_mantissa(self, exp: int) -> AdaptiveBit | None:
         return None if self.mantissa is None else self.mantissa[min(exp, _MANTISSA_MODELS) - 1]
