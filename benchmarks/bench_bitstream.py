@@ -24,7 +24,7 @@ from protocol.framing import KEY, body_bits, is_delta
 from protocol.quantise import QUALITIES
 from protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, steps_for
 from sender.analysis import LAYOUTS
-from sender.session import first_second, sample_basis
+from sender.session import first_basis
 
 FACE_PX = 512 / 1.35  # receiver framing: the view is 1.35 face heights tall
 ANGLES = ("theta", "rx", "ry", "rz")
@@ -49,8 +49,7 @@ def bench(path: Path, layout: tuple[str, ...], quality: int, dead_zone: float, a
     names = tuple(str(n) for n in d["names"])
     fps = float(d["fps"])
     params = d["params"][:, [names.index(n) for n in layout]]
-    first = first_second(fps)  # the basis comes from the first second, as fd-send makes it
-    basis = None if args.no_basis else sample_basis(layout, list(params[:first][d["found"][:first]]))
+    basis = None if args.no_basis else first_basis(layout, fps, list(zip(params, d["found"])))
     header = Header(fps, layout, steps_for(layout, quality), "00" * 32, quality=quality,
                     divisor=args.divisor, skip_static=not args.no_static, basis=basis, trained=not args.untrained)
     enc = PacketEncoder(header, args.frames_per_packet, dead_zone=dead_zone)

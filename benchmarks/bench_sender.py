@@ -37,7 +37,7 @@ from sender.analysis import LAYOUTS, FaceAnalyser, Smoothing
 from sender.calibrate import lip_gap
 from sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity
 from sender.sources import VideoSource
-from sender.session import first_basis, rate_sample, stream_header
+from sender.session import first_basis, first_frames, stream_header
 from sender.enroll import MOTION_PATTERNS
 from sender.tracker import FaceTracker
 
@@ -156,7 +156,7 @@ def clips(smoothing: float) -> None:
             names = analyser.names
             theta = np.array([r.params[0] for r, f in zip(results, found) if f])
             rd, bits_at = [], {}
-            basis = first_basis(names, source.fps, results)
+            basis = first_basis(names, source.fps, first_frames(source.fps, results))
             for q in QUALITIES:
                 bits_at[q], decoded = code(stream_header(names, source.fps, FACE_ID, q, basis=basis), results)
                 rd.append(f"{bits_at[q]:.0f}: {fidelity(deformer, targets, decoded, names).relative:.2f}")
@@ -206,9 +206,10 @@ def rd(smoothing: float, patterns: tuple[int, ...], frames_per_packet: int, targ
             test = results[half:]
             targets = np.stack([r.target for r in test if r.target is not None])
             cells = []
-            basis = first_basis(analyser.names, source.fps, test)
+            sample = first_frames(source.fps, test)
+            basis = first_basis(analyser.names, source.fps, sample)
             header_at = lambda q: stream_header(analyser.names, source.fps, FACE_ID, q, basis=basis)
-            chosen = quality_for_bitrate(header_at, rate_sample(source.fps, test), target_bits * source.fps,
+            chosen = quality_for_bitrate(header_at, sample, target_bits * source.fps,
                                          frames_per_packet, DEAD_ZONE)
             for q, target in [(q, "") for q in QUALITIES] + [(chosen, target_bits)]:
                 bits, decoded = code(header_at(q), test, frames_per_packet)
@@ -275,8 +276,9 @@ def smoothing_table() -> None:
         cells = []
         for landmarks in still.values():
             analyser, results, _, _ = analyse(base, landmarks, 25.0, "auto", smoothing)
-            bits, shown = code(stream_header(analyser.names, 25.0, FACE_ID,
-                                             basis=first_basis(analyser.names, 25.0, results[25:])), results[25:])
+            test = results[25:]
+            basis = first_basis(analyser.names, 25.0, first_frames(25.0, test))
+            bits, shown = code(stream_header(analyser.names, 25.0, FACE_ID, basis=basis), test)
             cells.append(f"{np.mean(np.any(np.diff(shown, axis=0) != 0, axis=1)):.0%} / {bits:.1f}")
         errors, rates = [], []
         for fps, landmarks, face in talking:

@@ -32,7 +32,7 @@ from protocol.arith import AdaptiveBit
 from protocol.priors import PATH, key_name, models_for
 from protocol.quantise import QUALITIES
 from protocol.stream import PacketEncoder, frame_bytes
-from sender.session import first_second, sample_basis, stream_header
+from sender.session import first_basis, stream_header
 
 SCALE = 16
 
@@ -60,8 +60,7 @@ def code(path: Path, quality: int, models) -> float:
     """Stream bits per frame of ``path`` coded as fd-send codes it, with ``models`` in place of
     :func:`protocol.priors.models_for` (None: a version 3 or 4 stream, flat models)."""
     names, fps, params, found = load(path)
-    first = first_second(fps)
-    header = stream_header(names, fps, "00" * 32, quality, basis=sample_basis(names, list(params[:first][found[:first]])))
+    header = stream_header(names, fps, "00" * 32, quality, basis=first_basis(names, fps, list(zip(params, found))))
     if models is None:
         header = replace(header, trained=False)
     with mock.patch.object(encoder_module, "models_for", models or models_for):

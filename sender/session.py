@@ -1,7 +1,7 @@
 """One sending session: a source of frames -> packets, plus statistics and the research dump."""
 
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from itertools import chain, islice
 
 import numpy as np
@@ -44,15 +44,17 @@ def first_second(fps: float) -> int:
     return max(1, round(fps))
 
 
-def first_basis(names: tuple[str, ...], fps: float, results: list[FrameAnalysis]) -> np.ndarray | None:
-    """The coding basis fd-send sends for a call that starts with ``results``: from its first
-    second's frames with a face."""
-    return sample_basis(names, [r.params for r in results[:first_second(fps)] if r.landmarks is not None])
-
-
-def rate_sample(fps: float, results: list[FrameAnalysis]) -> list[tuple[np.ndarray, bool]]:
-    """(parameters, face seen) of the call's first second: what --bitrate codes at every level."""
+def first_frames(fps: float, results: list[FrameAnalysis]) -> list[tuple[np.ndarray, bool]]:
+    """(parameters, face seen) of the call's first second: what --bitrate codes at every level,
+    and what :func:`first_basis` learns from."""
     return [(r.params, r.landmarks is not None) for r in results[:first_second(fps)]]
+
+
+def first_basis(names: tuple[str, ...], fps: float, frames: Sequence[tuple[np.ndarray, bool]]) -> np.ndarray | None:
+    """The coding basis fd-send sends for a call that starts with ``frames`` ((parameters, face
+    seen), as :func:`first_frames` gives them or a dump holds them): from its first second's frames
+    with a face."""
+    return sample_basis(names, [params for params, seen in frames[:first_second(fps)] if seen])
 
 
 class SendSession:
@@ -120,11 +122,12 @@ class SendSession:
         if self._bitrate is not None or self._use_basis:  # the analyser holds the first second anyway
             fps = self.source.fps
             first = list(islice(results, first_second(fps)))
+            sample = first_frames(fps, first)
             if self._use_basis:
-                self._basis = first_basis(self.analyser.names, fps, first)
+                self._basis = first_basis(self.analyser.names, fps, sample)
             quality = self.header.quality
             if first and self._bitrate is not None:
-                quality = quality_for_bitrate(self._header, rate_sample(fps, first), self._bitrate, self._fpp,
+                quality = quality_for_bitrate(self._header, sample, self._bitrate, self._fpp,
                                               self._dead_zone, 0 if self.sealer is None else self.sealer.overhead)
             self._configure(quality)
             results = chain(first, results)
