@@ -13,6 +13,7 @@ import json
 from functools import cache
 from pathlib import Path
 
+from codec.errors import FdError
 from protocol.arith import AdaptiveBit
 from protocol.entropy import NewBit
 from protocol.header import Header
@@ -24,10 +25,14 @@ PATH = Path(__file__).with_name("priors.json")
 
 @cache
 def tables() -> dict[str, dict[str, list[int]]]:
-    """{quality level: {model key name: [n0, n1]}}, checked against :data:`SHA256`."""
-    data = PATH.read_bytes()
+    """{quality level: {model key name: [n0, n1]}}, checked against :data:`SHA256`; FdError (one
+    line from the tools) if the installed file is missing or another."""
+    try:
+        data = PATH.read_bytes()
+    except OSError as exc:
+        raise FdError(f"cannot read {PATH}: {exc.strerror} (reinstall facedeform)") from None
     if hashlib.sha256(data).hexdigest() != SHA256:
-        raise RuntimeError(f"{PATH} is not the table of this format version (reinstall facedeform)")
+        raise FdError(f"{PATH} is not the entropy table of stream format 5 (reinstall facedeform)")
     return json.loads(data)
 
 

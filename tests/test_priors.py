@@ -11,7 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from codec.face_model import load_base_face
 from protocol import priors
+from receiver import cli as receiver_cli
 from protocol.entropy import GroupState
 from protocol.quantise import QUALITIES
 from protocol.stream import Frame, Header, StreamDecoder, StreamEncoder, steps_for
@@ -39,17 +41,30 @@ def test_every_level_has_a_table_of_small_counts_for_models_that_exist():
             assert isinstance(n0, int) and isinstance(n1, int) and 0 <= n0 and 0 <= n1 and 0 < n0 + n1 <= 16
 
 
-def test_a_table_that_is_not_this_versions_is_refused(tmp_path, monkeypatch):
+@pytest.mark.parametrize("damage, message", [
+    (lambda data: data.replace(b"[", b"[1", 1), "is not the entropy table of stream format 5"),
+    (None, "cannot read"),
+])
+def test_a_table_that_is_not_this_versions_is_refused_in_one_line(tmp_path, monkeypatch, capsys, damage, message):
+    """fd-recv on a good stream, with the installed table altered or gone: one line, exit 1."""
+    stream = tmp_path / "s.fd"
+    h = Header(25.0, NAMES, steps_for(NAMES), load_base_face().content_id)  # the face fd-recv holds
+    enc = StreamEncoder(h, 2)
+    stream.write_bytes(enc.header() + b"".join(enc.frame(np.zeros(len(NAMES)), True) for _ in range(3)) + enc.end())
     altered = tmp_path / "priors.json"
-    altered.write_bytes(priors.PATH.read_bytes().replace(b"[", b"[1", 1))
+    if damage is not None:
+        altered.write_bytes(damage(priors.PATH.read_bytes()))
+    args = [str(stream), "-o", str(tmp_path / "out.y4m"), "-q"]
     monkeypatch.setattr(priors, "PATH", altered)
     priors.tables.cache_clear()
     try:
-        with pytest.raises(RuntimeError, match="not the table"):
-            priors.tables()
+        code = receiver_cli.main(args)
+        err = capsys.readouterr().err
     finally:
         monkeypatch.undo()
         priors.tables.cache_clear()
+    assert code == 1 and message in err and err.count("\n") == 1 and "Traceback" not in err
+    assert receiver_cli.main(args) == 0  # the same stream with the installed table
 
 
 def test_trained_models_start_from_the_levels_counts_and_custom_steps_take_the_default_levels():
