@@ -20,7 +20,7 @@ import numpy as np
 
 from codec.deform import PAPER_PARAMS, Deformer, extended_params
 from codec.face_model import load_base_face
-from protocol.framing import KEY, body_bits, is_delta
+from protocol.framing import KEY, SYNC, Delta, body_bits, is_delta
 from protocol.quantise import QUALITIES
 from protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, steps_for
 from sender.analysis import LAYOUTS
@@ -35,8 +35,17 @@ LABELS = {**{names: name for name, names in LAYOUTS.items()}, PAPER_PARAMS: "pap
 
 
 def payload_bits(packets: list[bytes]) -> int:
-    """Entropy-coded bits of key and delta packets (type byte, length, CRC and sync excluded)."""
-    return sum(body_bits(p) for p in packets if p[0] >> 5 == KEY or is_delta(p[0]))
+    """Entropy-coded bits of key and delta packets (sync, type byte, length and check excluded;
+    version 6 codes its check inside the code: CRC-8 for a delta, CRC-16 for a keyframe packet)."""
+    bits = 0
+    for p in packets:
+        if isinstance(p, Delta):
+            bits += 8 * len(p) - 8
+        elif p[0] == SYNC and p[1] >> 5 == KEY:
+            bits += 8 * (len(p) - 2) - 16
+        elif p[0] >> 5 == KEY or is_delta(p[0]):
+            bits += body_bits(p)
+    return bits
 
 
 def vertices(deformer: Deformer, layout: tuple[str, ...], params: np.ndarray) -> np.ndarray:
@@ -51,7 +60,8 @@ def bench(path: Path, layout: tuple[str, ...], quality: int, dead_zone: float, a
     params = d["params"][:, [names.index(n) for n in layout]]
     basis = None if args.no_basis else first_basis(layout, fps, list(zip(params, d["found"])))
     header = Header(fps, layout, steps_for(layout, quality), "00" * 32, quality=quality,
-                    divisor=args.divisor, skip_static=not args.no_static, basis=basis, trained=not args.untrained)
+                    divisor=args.divisor, skip_static=not args.no_static, basis=basis, trained=not args.untrained,
+                    self_delimiting=not args.lengths)
     enc = PacketEncoder(header, args.frames_per_packet, dead_zone=dead_zone)
     head = enc.header()
     packets, sent = [], {}
@@ -94,12 +104,14 @@ def main() -> None:
     p.add_argument("--no-basis", action="store_true",
                    help="code each parameter on its own (fd-send --no-basis), not the first second's principal axes")
     p.add_argument("--untrained", action="store_true",
-                   help="format version 3/4's entropy models (flat counts), not version 5's trained ones")
+                   help="format version 3/4's entropy models (flat counts) and packet lengths, not version 6's")
+    p.add_argument("--lengths", action="store_true",
+                   help="format version 5: packets with lengths (what sealed streams carry), not self-delimiting ones")
     args = p.parse_args()
     deformer = Deformer(load_base_face())
     print(f"frames per packet: {args.frames_per_packet}, divisor {args.divisor}, static flags "
           f"{'off' if args.no_static else 'on'}, basis {'off' if args.no_basis else 'on'}, "
-          f"{'untrained' if args.untrained else 'trained'} models; "
+          f"format version {3 if args.untrained else 5 if args.lengths else 6}; "
           f"vertex error in px for a face {FACE_PX:.0f} px tall")
     print("| clip | layout | quality | dead zone | payload bits/frame | framing bits/frame | total bits/frame | "
           "bit/s | max vertex err px | rms vertex err px | max angle err deg | encode fps | decode fps |")

@@ -36,7 +36,8 @@ def clip_params(dump: str | None) -> tuple[np.ndarray, np.ndarray, tuple[str, ..
 
 
 def frame_packets(params, found, names, fps, fpp) -> list[bytes]:
-    header = Header(fps, names, steps_for(names), "00" * 32, key_interval=max(1, round(fps)))
+    header = Header(fps, names, steps_for(names), "00" * 32, key_interval=max(1, round(fps)),
+                    self_delimiting=False)  # sealed streams carry version 5
     enc = PacketEncoder(header, fpp)
     return [p for x, f in zip(params, found) for p in enc.frame(x, f)] + enc.end()
 

@@ -1,4 +1,4 @@
-"""Trains format version 5's starting counts (protocol/priors.json) on fd-send parameter dumps, and
+"""Trains the starting counts of format versions 5 and 6 (protocol/priors.json) on fd-send parameter dumps, and
 measures them leave-one-clip-out.
 
 Each dump is coded as fd-send codes it (its layout, the coding basis of its first
@@ -12,7 +12,7 @@ Dumps: ``fd-send CLIP -o /dev/null --dump CLIP.LAYOUT.npz --params LAYOUT`` for 
 and LAYOUT in paper, mouth, full (fd-send's other options at their defaults).
 
 ``--check`` codes each dump three ways (2 frames per packet) and prints a
-Markdown table of stream bits per frame: version 4's models (flat counts, no axis groups), version 5
+Markdown table of stream bits per frame: version 4's models (flat counts, no axis groups), version 6
 with the table trained on every dump, and with one trained on the other clips'
 dumps only (what a speaker outside the training set gets).
 """
@@ -92,7 +92,7 @@ def train(paths: list[Path]) -> dict[str, dict[str, list[int]]]:
 
 def check(paths: list[Path]) -> None:
     everyone = train(paths)
-    print("| clip | layout | quality | version 4 | version 5, all clips | version 5, other clips |")
+    print("| clip | layout | quality | version 4 | version 6, all clips | version 6, other clips |")
     print("|---|---|---|---|---|---|")
     for path in paths:
         clip = path.name.split(".")[0]

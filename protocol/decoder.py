@@ -10,10 +10,11 @@ header, another version) raises :class:`BitstreamError`.
 import numpy as np
 
 from codec.errors import BitstreamError
-from protocol.arith import Decoder
+from protocol.arith import Decoder, Incomplete
 from protocol.entropy import GroupState
 from protocol.events import Damage, End, Frame, Model, Stats
-from protocol.framing import DELTA, END, HEADER, KEY, MODEL, SYNC, is_delta, packet_size, parse, read_varint
+from protocol.framing import (DELTA, END, HEADER, KEY, MAX_BODY, MAX_COUNT, MODEL, SYNC, inner_check, is_delta,
+                              packet_size, parse, read_varint)
 from protocol.header import Header, parse_header
 from protocol.priors import models_for
 
@@ -22,7 +23,12 @@ _MAX_FRAME = 1 << 40
 
 
 class PacketDecoder:
-    """Whole packets (no sync byte) in, events out: the decoder for datagram transports."""
+    """Whole packets in, events out: the decoder for datagram transports.
+
+    A datagram holds one packet: in versions 2-5 without a sync byte; in
+    version 6 as on a byte stream (:meth:`accept_wire`), a sync byte before
+    each packet but a delta.
+    """
 
     def __init__(self) -> None:
         self.header: Header | None = None
@@ -37,7 +43,12 @@ class PacketDecoder:
 
     def receive(self, data: bytes) -> list:
         """Events of one datagram; a bad one is dropped and reported."""
-        events = self.accept(data)
+        data = bytes(data)
+        if self.header is not None and self.header.self_delimiting:
+            got = self.accept_wire(data, 0, final=True) if data else None
+            events = got[0] if got is not None and got[1] == len(data) else None
+        else:  # before the header, a version 6 stream's header arrives after its sync byte
+            events = self.accept(data[1:] if data[:1] == bytes([SYNC]) else data)
         return self.damage("packet fails its check or cannot be decoded") if events is None else events
 
     def accept(self, data: bytes) -> list | None:
@@ -65,6 +76,95 @@ class PacketDecoder:
             self.stats.packets += 1
             self._previous = data
         return events
+
+    def accept_wire(self, buf: bytes, pos: int, final: bool) -> tuple[list | None, int] | None:
+        """A version 6 packet as on a byte stream at ``buf[pos]``: (events, bytes used), (None, 0)
+        if it is not a valid packet here, None if it may be one but more bytes are needed
+        (never when ``final``: ``buf`` then ends where the stream or datagram does)."""
+        if buf[pos] != SYNC:
+            return self._self_delimited(buf, pos, final, DELTA)
+        if pos + 1 >= len(buf):
+            return (None, 0) if final else None
+        if buf[pos + 1] >> 5 == KEY:
+            got = self._self_delimited(buf, pos + 1, final, KEY)
+            return got if got is None or got[0] is None else (got[0], got[1] + 1)
+        try:
+            size = packet_size(buf, pos + 1)
+        except BitstreamError:
+            return None, 0
+        if size is None or pos + 1 + size > len(buf):
+            return (None, 0) if final else None
+        events = self.accept(buf[pos + 1:pos + 1 + size])
+        return (None, 0) if events is None else (events, 1 + size)
+
+    def _self_delimited(self, buf: bytes, pos: int, final: bool, kind: int) -> tuple[list | None, int] | None:
+        """A version 6 keyframe packet (from its type byte) or delta packet at ``buf[pos]``."""
+        try:
+            got = self._key6(buf, pos) if kind == KEY else self._delta6(buf, pos)
+        except Incomplete:
+            return (None, 0) if final or len(buf) - pos > MAX_BODY + 8 else None
+        except BitstreamError:
+            got = None
+        if got is None:
+            previous = self._previous
+            if previous and bytes(buf[pos:pos + len(previous)]) == previous:
+                self.stats.duplicates += 1
+                return [], len(previous)
+            return None, 0
+        events, data = got
+        self.stats.packets += 1
+        self._previous = data
+        return events, len(data)
+
+    def _key6(self, buf: bytes, pos: int) -> tuple[list, bytes] | None:
+        count = (buf[pos] & 0x1F) + 1
+        got = read_varint(buf, pos + 1, _MAX_FRAME)
+        if got is None:
+            raise Incomplete
+        coded, start = got
+        group = GroupState(len(self.header.names), self.header.skip_static, models_for(self.header))
+        dec = Decoder(bytes(buf[start:start + MAX_BODY]), SYNC, open_end=True)
+        decoded = [group.decode_key(dec)] + [group.decode_delta(dec) for _ in range(count - 1)]
+        data = self._checked(dec, KEY, bytes(buf[pos:start]), buf, pos, start)
+        if data is None:
+            return None
+        return self._key_events(coded, group, decoded), data
+
+    def _delta6(self, buf: bytes, pos: int) -> tuple[list, bytes] | None:
+        if self._group is None or self.ended:
+            return None
+        group, dec = self._group, Decoder(bytes(buf[pos:pos + MAX_BODY]), SYNC, open_end=True)
+        saved, dec.journal = group.state(), []  # the group changes only if the packet passes its check
+        try:
+            decoded, interval = [], self.header.key_interval
+            while True:
+                decoded.append(group.decode_delta(dec))
+                if len(decoded) == MAX_COUNT or (self._next + len(decoded)) % interval == 0:
+                    break
+                if not group.decode_more(dec):
+                    break
+            data = self._checked(dec, DELTA, self._next.to_bytes(4, "big"), buf, pos, pos)
+        except (Incomplete, BitstreamError):
+            group.restore(saved, dec.journal)
+            raise
+        if data is None:
+            group.restore(saved, dec.journal)
+            return None
+        group.end_packet()
+        return self._emit(self._next, decoded), data
+
+    @staticmethod
+    def _checked(dec: Decoder, kind: int, covered: bytes, buf: bytes, pos: int, start: int) -> bytes | None:
+        """The packet's bytes if the check coded after its frames holds and its code is the
+        encoder's own (``start``: where the code begins), else None."""
+        value, bits = inner_check(kind, covered, dec.trace)
+        got = 0
+        for _ in range(bits):
+            got = got << 1 | dec.bit()
+        code = dec.end()
+        if got != value or bytes(buf[start:start + len(code)]) != code:
+            return None
+        return bytes(buf[pos:start + len(code)])
 
     def damage(self, reason: str, always: bool = False) -> list:
         """Records damage; reported once per loss of sync (unless ``always``), then frames wait for a keyframe."""
@@ -104,13 +204,17 @@ class PacketDecoder:
         if got is None:
             return None
         coded, pos = got
-        if coded < self._next or self.ended:
-            self.stats.duplicates += 1
-            return []
         group = GroupState(len(self.header.names), self.header.skip_static, models_for(self.header))
         dec = Decoder(packet.body[pos:])
         decoded = [group.decode_key(dec)] + [group.decode_delta(dec) for _ in range(packet.count - 1)]
+        return self._key_events(coded, group, decoded)
+
+    def _key_events(self, coded: int, group: GroupState, decoded: list) -> list:
+        if coded < self._next or self.ended:
+            self.stats.duplicates += 1
+            return []
         events = self.damage("packets lost before a keyframe") if coded > self._next else []
+        group.end_packet()
         self._group = group
         return events + self._emit(coded, decoded)
 
@@ -259,13 +363,24 @@ class StreamDecoder(ByteStreamDecoder):
         self._synced = False  # the buffer starts where the last accepted packet ended
 
     def _starts_packet(self, pos: int) -> bool:
-        return self._buf[pos] == SYNC or (self._synced and is_delta(self._buf[pos]))
+        header = self._core.header
+        return self._buf[pos] == SYNC or (self._synced and (
+            is_delta(self._buf[pos]) or header is not None and header.self_delimiting))
 
     def _no_stream(self) -> str:
         return "empty input: no fd stream" if not self._seen else "input is not an fd stream (no valid header)"
 
     def _packet_at(self, pos: int, final: bool) -> tuple[list, int] | None:
         buf = self._buf
+        header = self._core.header
+        if header is not None and header.self_delimiting:
+            got = self._core.accept_wire(buf, pos, final)
+            if got is None:
+                return None
+            if got[0] is None:
+                return self._skip(1, "packet fails its check or cannot be decoded"), 1
+            self._synced = True
+            return got
         start = pos + (buf[pos] == SYNC)
         try:
             size = packet_size(buf, start)

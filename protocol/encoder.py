@@ -12,7 +12,8 @@ import numpy as np
 from codec.errors import BitstreamError
 from protocol.arith import Encoder
 from protocol.entropy import GroupState
-from protocol.framing import DELTA, END, HEADER, KEY, MAX_COUNT, MODEL, SYNC, build, is_delta, varint
+from protocol.framing import (DELTA, END, HEADER, KEY, MAX_BODY, MAX_COUNT, MODEL, SYNC, Delta, build, inner_check,
+                              is_delta, varint)
 from protocol.header import Header, encode_header
 from protocol.priors import models_for
 from protocol.quantise import DEAD_ZONE, hold_or_round
@@ -48,13 +49,13 @@ class PacketEncoder:
         self.reconstruction: np.ndarray | None = None
         self._group: GroupState | None = None
         self._coder: Encoder | None = None
-        self._kind = self._first = self._count = self._active = 0
+        self._kind = self._first = self._count = 0
 
     def header(self) -> list[bytes]:
         """The header packet, then the face model in chunks."""
         chunks = [build(MODEL, varint(i) + self._model[i:i + MODEL_CHUNK])
                   for i in range(0, len(self._model), MODEL_CHUNK)]
-        return [build(HEADER, encode_header(self._h))] + chunks
+        return [self._synced(build(HEADER, encode_header(self._h)))] + [self._synced(c) for c in chunks]
 
     def frame(self, params: np.ndarray, face_seen: bool) -> list[bytes]:
         """(k,) float params in the header's layout; returns the packets this frame completes."""
@@ -74,32 +75,55 @@ class PacketEncoder:
             self._group = GroupState(len(values), self._h.skip_static, self._new_bit)
             self._start(KEY, coded)
             self._group.encode_key(self._coder, values, face)
-            self._active += 1
         else:
             if self._coder is None:
                 self._start(DELTA, coded)
-            self._active += not self._group.is_static(values, face)
+            elif self._h.self_delimiting and self._kind == DELTA:
+                self._group.encode_more(self._coder, True)
             self._group.encode_delta(self._coder, values, face)
         self._count += 1
-        if (self._active >= self._fpp or self._count == MAX_COUNT
-                or (coded + 1) % self._h.key_interval == 0):
-            return [self._flush()]
+        implied = self._count == MAX_COUNT or (coded + 1) % self._h.key_interval == 0
+        if implied or self._group.active >= self._fpp:
+            return [self._flush(stop_flag=not implied)]
         return []
 
     def end(self) -> list[bytes]:
         """The last pending packet and the end mark."""
-        pending = [self._flush()] if self._coder is not None else []
-        return pending + [build(END, varint(self._frames))]
+        pending = [self._flush(stop_flag=True)] if self._coder is not None else []
+        return pending + [self._synced(build(END, varint(self._frames)))]
+
+    def _synced(self, packet: bytes) -> bytes:
+        """Version 6 packets are as on a byte stream, in datagrams too: a sync byte before each but a delta."""
+        return bytes([SYNC]) + packet if self._h.self_delimiting else packet
 
     def _start(self, kind: int, coded: int) -> None:
-        self._coder, self._kind, self._first, self._count, self._active = Encoder(), kind, coded, 0, 0
+        self._coder = Encoder(SYNC if self._h.self_delimiting else 256)
+        self._kind, self._first, self._count = kind, coded, 0
 
-    def _flush(self) -> bytes:
-        body = self._coder.finish()
-        if self._kind == KEY:
-            body = varint(self._first) + body
-        self._coder = None
-        return build(self._kind, body, self._count, self._first)
+    def _flush(self, stop_flag: bool) -> bytes:
+        """The pending packet; ``stop_flag``: the decoder cannot tell that it ends here (version 6
+        then codes so in a delta packet)."""
+        coder, group, self._coder = self._coder, self._group, None
+        if not self._h.self_delimiting:
+            body = coder.finish()
+            if self._kind == KEY:
+                body = varint(self._first) + body
+            group.end_packet()
+            return build(self._kind, body, self._count, self._first)
+        if self._kind == DELTA:
+            if stop_flag:
+                group.encode_more(coder, False)
+            head, covered = b"", self._first.to_bytes(4, "big")
+        else:
+            head = covered = bytes([KEY << 5 | self._count - 1]) + varint(self._first)
+        value, bits = inner_check(self._kind, covered, coder.trace)
+        for i in range(bits - 1, -1, -1):
+            coder.bit(value >> i & 1)
+        group.end_packet()
+        code = coder.end()
+        if len(code) > MAX_BODY:
+            raise BitstreamError(f"packet too large ({self._count} frames, {len(code)} bytes)")
+        return self._synced(head + code) if self._kind == KEY else Delta(code)
 
 
 class StreamEncoder:
@@ -121,6 +145,10 @@ class StreamEncoder:
 
 
 def frame_bytes(packets: list[bytes], sealed: bool = False) -> bytes:
-    """Packets as they go on a byte stream: a sync byte before each but a delta. ``sealed``
-    packets (protocol/secure.py) are opaque, so each has its sync byte."""
-    return b"".join(p if not sealed and is_delta(p[0]) else bytes([SYNC]) + p for p in packets)
+    """Packets as they go on a byte stream: a sync byte before each but a delta. Version 6 packets
+    are so already (they start with the sync byte, or are a :class:`~protocol.framing.Delta`).
+    ``sealed`` packets (protocol/secure.py) are opaque, so each has its sync byte."""
+    if sealed:
+        return b"".join(bytes([SYNC]) + p for p in packets)
+    return b"".join(p if p[0] == SYNC or isinstance(p, Delta) or is_delta(p[0]) else bytes([SYNC]) + p
+                    for p in packets)

@@ -14,7 +14,10 @@ Version 5 adds what a second of data cannot learn on its own: the zero flag and
 the prefix also depend on the value's axis (the coding basis puts the largest
 motion first), the first bit below a magnitude's leading one has a model, and
 every model starts from trained counts (``protocol/priors.py``) instead of
-from nothing, so the reset at each keyframe costs little.
+from nothing, so the reset at each keyframe costs little. Version 6 codes, after
+each frame of a delta packet, whether another follows: the packet then ends
+itself, and the flag costs almost nothing because a packet usually holds as
+many frames as the one before.
 """
 
 from collections.abc import Callable
@@ -108,6 +111,8 @@ class GroupState:
 
     def __init__(self, k: int, static: bool, new_bit: NewBit | None = None) -> None:
         self.k, self.static = k, static
+        self.active = 0  # frames of the current packet that are not static
+        self._last_active = 0  # the same for the packet before
         self.values: list[int] = [0] * k
         self.face = True
         self._residuals = [0] * k
@@ -116,16 +121,19 @@ class GroupState:
         make = _flat if new_bit is None else new_bit
         self._face = [make(("frame", "face", f)) for f in range(2)]
         self._static = make(("frame", "static"))
+        self._more = [make(("frame", "more", c)) for c in range(2)]  # by: as many frames as the last packet yet
 
     def encode_key(self, enc: Encoder, values: list[int], face: bool) -> None:
         enc.bit(face, self._face[1])
         for j, v in enumerate(values):
             _encode_int(enc, v, self._absolute, j, 0, 0)
         self.values, self.face = list(values), face
+        self.active += 1
 
     def decode_key(self, dec: Decoder) -> tuple[list[int], bool]:
         self.face = bool(dec.bit(self._face[1]))
         self.values = [_decode_int(dec, self._absolute, j, 0, 0) for j in range(self.k)]
+        self.active += 1
         return list(self.values), self.face
 
     def is_static(self, values: list[int], face: bool) -> bool:
@@ -147,6 +155,7 @@ class GroupState:
             _encode_int(enc, r, self._delta, j, _activity_class(last, neighbour), last)
             self._residuals[j] = neighbour = r
         self.values = list(values)
+        self.active += 1
 
     def decode_delta(self, dec: Decoder) -> tuple[list[int], bool]:
         if self.static and dec.bit(self._static):
@@ -159,4 +168,25 @@ class GroupState:
             r = _decode_int(dec, self._delta, j, _activity_class(last, neighbour), last)
             self.values[j] += r
             self._residuals[j] = neighbour = r
+        self.active += 1
         return list(self.values), self.face
+
+    def encode_more(self, enc: Encoder, more: bool) -> None:
+        """Whether another frame follows in this delta packet (version 6)."""
+        enc.bit(more, self._more[self.active >= self._last_active])
+
+    def decode_more(self, dec: Decoder) -> bool:
+        return bool(dec.bit(self._more[self.active >= self._last_active]))
+
+    def state(self) -> tuple:
+        """What decoding changes apart from the models (which a decoder's journal records)."""
+        return list(self.values), list(self._residuals), self.face, self.active, self._last_active
+
+    def restore(self, state: tuple, journal: list) -> None:
+        """Undoes a trial decode: ``state`` from before it, ``journal`` its decoder's."""
+        for model, n0, n1 in reversed(journal):
+            model.n0, model.n1 = n0, n1
+        self.values, self._residuals, self.face, self.active, self._last_active = state
+
+    def end_packet(self) -> None:
+        self._last_active, self.active = self.active, 0

@@ -17,6 +17,13 @@ On a byte stream (pipe, file, TCP) each packet but a delta is preceded by
 :data:`SYNC`; a datagram carries one packet without it. A decoder that lost
 sync finds it again at a sync byte, and only a keyframe restarts decoding
 there, so deltas need none.
+
+Version 6 drops the length of keyframe and delta packets and the delta's
+first byte: their arithmetic code ends itself (``protocol.arith.Encoder.end``)
+and carries the check as its last coded bits (:func:`inner_check`), so a delta
+is nothing but its code. The code never starts with :data:`SYNC`, which is then
+all a decoder needs to tell a delta from the rest; a version 6 datagram holds
+the packet's byte-stream bytes, sync byte included.
 """
 
 import binascii
@@ -48,16 +55,34 @@ def _crc8_table() -> list[int]:
 _CRC8 = _crc8_table()  # polynomial x^8 + x^2 + x + 1: every 1-3 bit error in a delta packet
 
 
+def _crc8(data: bytes) -> int:
+    crc = 0
+    for byte in data:
+        crc = _CRC8[crc ^ byte]
+    return crc
+
+
 def _check(kind: int, data: bytes, first_frame: int) -> bytes:
     width = _CHECK[kind]
     if width == 4:
         return zlib.crc32(data).to_bytes(4, "big")
     if width == 2:
         return binascii.crc_hqx(data, 0xFFFF).to_bytes(2, "big")
-    crc = 0
-    for byte in first_frame.to_bytes(4, "big") + data:
-        crc = _CRC8[crc ^ byte]
-    return bytes([crc])
+    return bytes([_crc8(first_frame.to_bytes(4, "big") + data)])
+
+
+def inner_check(kind: int, covered: bytes, trace: int) -> tuple[int, int]:
+    """(value, bits) of a version 6 frames packet's check, coded inside its arithmetic code.
+
+    It covers ``covered`` (a delta: its 4-byte first frame number; a keyframe
+    packet: its bytes before the code) and ``trace``, every bit coded before it
+    behind a leading 1 (:attr:`protocol.arith.Encoder.trace`): CRC-8 for a delta,
+    CRC-16 for a keyframe packet, as in the older versions.
+    """
+    data = covered + trace.to_bytes((trace.bit_length() + 7) // 8, "big")
+    if kind == DELTA:
+        return _crc8(data), 8
+    return binascii.crc_hqx(data, 0xFFFF), 16
 
 
 def varint(n: int) -> bytes:
@@ -83,6 +108,11 @@ def read_varint(data: bytes, pos: int, limit: int) -> tuple[int, int] | None:
             return value, pos
         shift += 7
     return None
+
+
+class Delta(bytes):
+    """A version 6 delta packet: its first byte may be anything but :data:`SYNC`, so it says what
+    it is by its type (:func:`protocol.encoder.frame_bytes` gives it no sync byte)."""
 
 
 @dataclass(frozen=True)

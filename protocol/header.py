@@ -15,11 +15,14 @@ from protocol.framing import read_varint, varint
 from protocol.quantise import dequantise
 
 MAGIC = b"FD"
-VERSION = 5
+VERSION = 6
 #: Version 2 differs only in framing (every packet long, and after a sync byte); version 4 adds a
 #: coding basis to version 3's header; version 5 adds trained entropy models (protocol/entropy.py)
-#: and carries a basis or not. Versions 3 and 4 are still written for ``Header(trained=False)``.
-READABLE = (2, 3, 4, 5)
+#: and carries a basis or not; version 6 is version 5 with keyframe and delta packets whose code
+#: ends itself (no length field, the check inside the code). Versions 5, and 3 and 4, are still
+#: written for ``Header(self_delimiting=False)`` and ``Header(trained=False)``.
+READABLE = (2, 3, 4, 5, 6)
+TRAINED_VERSION = 5
 BASIS_VERSION = 4
 MAX_NAMES = 64
 MAX_NAME = 32
@@ -43,7 +46,10 @@ class Header:
     basis: (k, k) int8 coding axes (``protocol.basis``) or None: the coded values are then
     coordinates along the axes, in steps, instead of one value per parameter;
     trained: the entropy models start from trained counts (version 5), else from
-    nothing (versions 2-4, what older decoders read).
+    nothing (versions 2-4, what older decoders read); self_delimiting: keyframe
+    and delta packets end themselves (version 6; needs ``trained``, and is
+    False whenever ``trained`` is). Sealed byte streams need packet lengths, so
+    they use version 5.
     """
 
     fps: float
@@ -58,6 +64,7 @@ class Header:
     model_size: int = 0
     basis: np.ndarray | None = None
     trained: bool = True
+    self_delimiting: bool = True
 
     def __post_init__(self) -> None:
         names, steps = self.names, np.asarray(self.steps, dtype=np.float64)
@@ -75,10 +82,17 @@ class Header:
         except (ValueError, TypeError):
             raise BitstreamError("face id must be a sha256 hex string") from None
         object.__setattr__(self, "steps", steps)
+        object.__setattr__(self, "self_delimiting", self.self_delimiting and self.trained)
         if self.basis is not None:
             forward, inverse = basis_matrices(self.basis, len(names))
             object.__setattr__(self, "_forward", forward)
             object.__setattr__(self, "_inverse", inverse)
+
+    @property
+    def version(self) -> int:
+        if self.self_delimiting:
+            return VERSION
+        return TRAINED_VERSION if self.trained else 3 if self.basis is None else BASIS_VERSION
 
     def coordinates(self, params: np.ndarray) -> np.ndarray:
         """(k,) parameters -> (k,) coded coordinates in steps (indices are their rounding)."""
@@ -97,8 +111,7 @@ class Header:
 
 def encode_header(h: Header) -> bytes:
     flags = _FLAG_F3_WITH_JAW * h.f3_with_jaw | _FLAG_STATIC * h.skip_static | _FLAG_BASIS * (h.basis is not None)
-    version = VERSION if h.trained else 3 if h.basis is None else BASIS_VERSION
-    out = bytearray(MAGIC + bytes([version, flags, h.quality, h.key_interval, h.divisor]))
+    out = bytearray(MAGIC + bytes([h.version, flags, h.quality, h.key_interval, h.divisor]))
     out += varint(round(h.fps * 1000)) + bytes.fromhex(h.face_id) + varint(h.model_size)
     out.append(len(h.names))
     for name in h.names:
@@ -117,7 +130,7 @@ def parse_header(body: bytes) -> Header:
         raise BitstreamError(f"unsupported stream version {body[2]} (this decoder reads "
                              f"{', '.join(map(str, READABLE))})")
     flags, quality, key_interval, divisor = body[3:7]
-    if body[2] < VERSION and bool(flags & _FLAG_BASIS) != (body[2] == BASIS_VERSION):
+    if body[2] < TRAINED_VERSION and bool(flags & _FLAG_BASIS) != (body[2] == BASIS_VERSION):
         raise BitstreamError(f"stream version {body[2]} with{'' if flags & _FLAG_BASIS else 'out'} a basis")
     fps_milli, pos = _varint(body, 7, 1_000_000)
     if pos + 32 > len(body):
@@ -146,7 +159,8 @@ def parse_header(body: bytes) -> Header:
     if basis_bytes:
         basis = np.frombuffer(body, dtype=np.int8, count=basis_bytes, offset=pos + 8 * count).reshape(count, count)
     return Header(fps_milli / 1000, tuple(names), steps, face_id, bool(flags & _FLAG_F3_WITH_JAW), quality,
-                  key_interval, divisor, bool(flags & _FLAG_STATIC), model_size, basis, body[2] == VERSION)
+                  key_interval, divisor, bool(flags & _FLAG_STATIC), model_size, basis,
+                  body[2] >= TRAINED_VERSION, body[2] == VERSION)
 
 
 def _varint(body: bytes, pos: int, limit: int) -> tuple[int, int]:

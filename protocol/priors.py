@@ -1,8 +1,8 @@
-"""Trained starting counts of version 5's entropy models, one table per quality level.
+"""Trained starting counts of the entropy models of versions 5 and 6, one table per quality level.
 
 The counts are part of the format: a decoder must start each keyframe's models
 from the same counts as the encoder did, so ``priors.json`` is checked against
-:data:`SHA256` when it is loaded and never changes within a version. Where they
+:data:`SHA256` when it is loaded, and what a version reads from it never changes. Where they
 come from (fd-send's parameters of the dev clips, each model's counts scaled to
 a total of 16 so the data still rules after a second) and what they save:
 benchmarks/train_priors.py and docs/bitstream.md.
@@ -19,7 +19,7 @@ from protocol.entropy import NewBit
 from protocol.header import Header
 from protocol.quantise import DEFAULT_QUALITY, QUALITIES
 
-SHA256 = "508993548c4bc135627d61a1967540e06005a22ffefc352c0dca594ac5c67cc4"
+SHA256 = "c0cae46dd955b71e4bb5e5bd333fc04d3e397944ea1f9b630246bc498c50efa1"
 PATH = Path(__file__).with_name("priors.json")
 
 
@@ -32,7 +32,7 @@ def tables() -> dict[str, dict[str, list[int]]]:
     except OSError as exc:
         raise FdError(f"cannot read {PATH}: {exc.strerror} (reinstall facedeform)") from None
     if hashlib.sha256(data).hexdigest() != SHA256:
-        raise FdError(f"{PATH} is not the entropy table of stream format 5 (reinstall facedeform)")
+        raise FdError(f"{PATH} is not the entropy table of stream formats 5 and 6 (reinstall facedeform)")
     return json.loads(data)
 
 
@@ -44,7 +44,8 @@ def key_name(key: tuple) -> str:
 def models_for(header: Header, levels: dict[str, dict[str, list[int]]] | None = None) -> NewBit | None:
     """What a stream's :class:`protocol.entropy.GroupState` makes its models with: the header
     level's trained counts from ``levels`` (default: :func:`tables`; custom steps take the default
-    level's), None before version 5."""
+    level's), None before version 5. Version 6 adds models (``frame.more``) that version 5
+    never asks for, so one table serves both."""
     if not header.trained:
         return None
     table = (levels or tables())[str(header.quality if header.quality in QUALITIES else DEFAULT_QUALITY)]

@@ -32,7 +32,7 @@ from cryptography.hazmat.primitives.ciphers import Cipher, algorithms, modes
 from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
 from codec.errors import BitstreamError, InputError
-from protocol.framing import MAX_BODY, packet_size
+from protocol.framing import MAX_BODY, SYNC, Delta, packet_size
 
 MAGIC = b"FDS\x01"
 KEY_BYTES, SALT_BYTES, KEY_ID_BYTES = 32, 16, 4
@@ -106,6 +106,10 @@ class SecureSealer:
         return data + self._keys.tag(b"\0", data, self.tag_bytes)
 
     def seal(self, packet: bytes) -> bytes:
+        """One packet of a version 2-5 stream (a byte stream of sealed packets reads each inner
+        packet's length, which version 6's keyframe and delta packets do not carry)."""
+        if packet[:1] == bytes([SYNC]) or isinstance(packet, Delta):
+            raise BitstreamError("sealed streams carry version 5 packets (Header(self_delimiting=False))")
         if self._index >= _MAX_INDEX:
             raise BitstreamError("stream too long for one key stream: start a new one")
         index, self._index = self._index, self._index + 1

@@ -1,4 +1,5 @@
-"""Stream format versions 3 to 5 (4: 3 with a coding basis; 5: trained entropy models): the public API in one import.
+"""Stream format versions 3 to 6 (4: 3 with a coding basis; 5: trained entropy models; 6: self-delimiting
+frames packets): the public API in one import.
 
 No I/O here: encoders return bytes or packets, decoders take bytes in any
 chunking (byte streams) or one packet at a time (datagrams) and return events.

@@ -19,12 +19,14 @@ from sender.sources import open_source
 
 
 def stream_header(names: tuple[str, ...], fps: float, face_id: str, quality: int = DEFAULT_QUALITY,
-                  model_size: int = 0, basis: np.ndarray | None = None, divisor: int = 1) -> Header:
+                  model_size: int = 0, basis: np.ndarray | None = None, divisor: int = 1,
+                  sealed: bool = False) -> Header:
     """The header fd-send writes: a keyframe a second (of the frames sent: one in ``divisor``), and
-    static-frame flags (with the dead zone a still face sends unchanged frames, a flag each)."""
+    static-frame flags (with the dead zone a still face sends unchanged frames, a flag each);
+    version 6, or 5 for a ``sealed`` stream (whose byte stream reads packet lengths)."""
     return Header(fps, names, steps_for(names, quality), face_id, quality=quality,
                   key_interval=max(1, min(255, round(fps / divisor))), divisor=divisor, skip_static=True,
-                  model_size=model_size, basis=basis)
+                  model_size=model_size, basis=basis, self_delimiting=not sealed)
 
 
 def sample_basis(names: tuple[str, ...], sample: list[np.ndarray]) -> np.ndarray | None:
@@ -94,8 +96,8 @@ class SendSession:
                                      neutral=neutral, smoothing=Smoothing(smoothing))
         self._face_id, self._model, self._fpp, self._dead_zone = face.content_id, model, frames_per_packet, dead_zone
         self._bitrate, self._use_basis, self._basis, self._divisor = bitrate, basis, None, divisor
-        self._configure(quality)
         self.sealer = None if key is None else SecureSealer(key, tag_bits)
+        self._configure(quality)
         self.frames: list[FrameAnalysis] = []
         self.stream_bytes = 0  # as a byte stream (sync bytes included), header excluded
         self.header_bytes = 0
@@ -109,7 +111,7 @@ class SendSession:
 
     def _header(self, quality: int) -> Header:
         return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model),
-                             self._basis, self._divisor)
+                             self._basis, self._divisor, self.sealed)
 
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)

@@ -53,14 +53,18 @@ def test_same_sample_same_bytes_and_a_still_face_gets_none():
     assert principal_basis(sample[:1], steps_for(NAMES), POSE) is None
 
 
-@pytest.mark.parametrize("trained, versions", [(True, (5, 5)), (False, (4, 3))])
-def test_a_header_with_a_basis_reads_back(trained, versions):
-    """Version 5 carries a basis or not; without trained models a basis makes version 4, none version 3."""
+@pytest.mark.parametrize("trained, self_delimiting, versions", [
+    (True, True, (6, 6)), (True, False, (5, 5)), (False, True, (4, 3))])
+def test_a_header_with_a_basis_reads_back(trained, self_delimiting, versions):
+    """Versions 5 and 6 carry a basis or not; without trained models a basis makes version 4, none
+    version 3 (and packets have lengths, whatever ``self_delimiting`` says)."""
     basis = principal_basis(talking(), steps_for(NAMES), POSE)
-    body = encode_header(replace(header(basis), trained=trained))
-    assert (body[2], encode_header(replace(header(), trained=trained))[2]) == versions
+    made = replace(header(basis), trained=trained, self_delimiting=self_delimiting)
+    body = encode_header(made)
+    assert (body[2], encode_header(replace(header(), trained=trained, self_delimiting=self_delimiting))[2]) == versions
     back = parse_header(body)
-    assert back == replace(header(basis), trained=trained) and back.trained == trained
+    assert back == made and (back.trained, back.self_delimiting) == (trained, trained and self_delimiting)
+    assert back.version == body[2]
     np.testing.assert_array_equal(back.basis, basis)
 
 

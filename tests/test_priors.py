@@ -42,7 +42,7 @@ def test_every_level_has_a_table_of_small_counts_for_models_that_exist():
 
 
 @pytest.mark.parametrize("damage, message", [
-    (lambda data: data.replace(b"[", b"[1", 1), "is not the entropy table of stream format 5"),
+    (lambda data: data.replace(b"[", b"[1", 1), "is not the entropy table of stream formats 5 and 6"),
     (None, "cannot read"),
 ])
 def test_a_table_that_is_not_this_versions_is_refused_in_one_line(tmp_path, monkeypatch, capsys, damage, message):

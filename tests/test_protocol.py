@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from codec.deform import PAPER_PARAMS
 from codec.errors import BitstreamError
-from protocol.framing import DELTA, HEADER, SHORT, SHORT_LENGTHS, build, is_delta, is_short
+from protocol.framing import DELTA, HEADER, SHORT, SHORT_LENGTHS, SYNC, Delta, build, is_delta, is_short
 from protocol.basis import SCALE
 from protocol.header import MAX_MODEL, encode_header
 from protocol.quantise import QUALITIES, dequantise, hold_or_round, quantise
@@ -63,10 +63,11 @@ def frames(events) -> list[Frame]:
 @settings(max_examples=40, deadline=None)
 @given(st.sampled_from(LAYOUTS), st.sampled_from(QUALITIES), st.integers(1, 32), st.booleans(),
        st.integers(1, 30), st.lists(st.floats(-2, 2), min_size=0, max_size=60), st.integers(0, 2**32 - 1),
-       st.booleans(), st.booleans())
-def test_round_trip_gives_the_quantised_values(names, quality, fpp, static, key, jumps, seed, basis, trained):
+       st.booleans(), st.sampled_from([6, 5, 3]))
+def test_round_trip_gives_the_quantised_values(names, quality, fpp, static, key, jumps, seed, basis, version):
     h = header(names, quality, skip_static=static, key_interval=key,
-               basis=random_basis(len(names), seed) if basis else None, trained=trained)
+               basis=random_basis(len(names), seed) if basis else None, trained=version > 3,
+               self_delimiting=version == 6)
     params = walk(len(jumps), len(names), seed) + np.array(jumps)[:, None]
     params[1::3] = params[0::3][:len(params[1::3])]  # static runs
     faces = [bool(i % 5) for i in range(len(params))]
@@ -155,6 +156,28 @@ def test_datagrams_decode_like_the_byte_stream():
         np.testing.assert_array_equal(a.params, b.params)
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 12), st.integers(1, 9), st.lists(st.floats(-2, 2), min_size=1, max_size=40),
+       st.integers(0, 2**32 - 1), st.lists(st.integers(1, 9), min_size=1, max_size=8))
+def test_any_chunking_gives_the_frames_of_the_whole(fpp, key, jumps, seed, chunks):
+    """A version 6 packet is read as soon as its last byte is in, whatever follows it or not yet."""
+    params = walk(len(jumps), 13, seed) + np.array(jumps)[:, None]
+    params[1::4] = params[0::4][:len(params[1::4])]
+    data = frame_bytes(encode(header(skip_static=True, key_interval=key), params, fpp))
+    whole, _ = decode(data)
+    dec, parts, pos = StreamDecoder(), [], 0
+    for i in range(len(data)):
+        n = chunks[i % len(chunks)]
+        parts += dec.feed(data[pos:pos + n])
+        pos += n
+        if pos >= len(data):
+            break
+    parts += dec.close()
+    assert [type(e) for e in parts] == [type(e) for e in whole] and not dec.stats.damaged
+    for a, b in zip(frames(whole), frames(parts)):
+        np.testing.assert_array_equal(a.params, b.params)
+
+
 def test_byte_by_byte_equals_whole():
     data = frame_bytes(encode(header(skip_static=True), walk(50, 13), fpp=4))
     whole, _ = decode(data)
@@ -177,11 +200,14 @@ def test_golden_stream_bytes_are_stable():
     assert frame_bytes(encode(golden_header(), GOLDEN_PARAMS)).hex() == GOLDEN
 
 
-def test_a_version_3_stream_is_still_written_and_read():
-    """Version 3 (flat entropy models) is what an untrained header writes, and what older decoders read."""
-    old = replace(golden_header(), trained=False)
-    assert frame_bytes(encode(old, GOLDEN_PARAMS)).hex() == GOLDEN_V3
-    events, dec = decode(bytes.fromhex(GOLDEN_V3))
+@pytest.mark.parametrize("change, golden", [
+    ({"self_delimiting": False}, "GOLDEN_V5"),  # packets with lengths: what sealed streams carry
+    ({"trained": False}, "GOLDEN_V3"),  # flat entropy models: what older decoders read
+])
+def test_older_versions_are_still_written_and_read(change, golden):
+    old, expected = replace(golden_header(), **change), globals()[golden]
+    assert frame_bytes(encode(old, GOLDEN_PARAMS)).hex() == expected
+    events, dec = decode(bytes.fromhex(expected))
     assert dec.header == old and not dec.stats.damaged
     np.testing.assert_array_equal([f.params for f in frames(events)], GOLDEN_PARAMS)
 
@@ -193,8 +219,21 @@ def test_a_version_2_stream_still_decodes():
     np.testing.assert_array_equal([f.params for f in frames(events)], GOLDEN_PARAMS)
 
 
+def test_version_6_deltas_end_themselves():
+    """No length, no sync byte, never the sync byte first; every other packet starts with its sync
+    byte, in datagrams too, so a byte stream is the packets end to end."""
+    packets = encode(header(skip_static=True), walk(60, 13), fpp=2)
+    deltas = [p for p in packets if isinstance(p, Delta)]
+    assert len(deltas) > 20 and all(p[0] != SYNC for p in deltas)
+    assert all(p[0] == SYNC for p in packets if not isinstance(p, Delta))
+    assert frame_bytes(packets) == b"".join(packets)
+    v5 = encode(header(skip_static=True, self_delimiting=False), walk(60, 13), fpp=2)
+    assert len(frame_bytes(packets)) < len(frame_bytes(v5)) - len(deltas) // 2  # the length byte, less the end's bits
+
+
 def test_deltas_have_no_sync_byte_and_small_ones_are_short():
-    packets = encode(header(), walk(60, 13), fpp=2)
+    """Version 5's deltas: a byte of count and length where they fit."""
+    packets = encode(header(self_delimiting=False), walk(60, 13), fpp=2)
     deltas = [p for p in packets if p[0] >> 5 == DELTA or is_short(p[0])]
     short = [p for p in deltas if is_short(p[0])]
     assert len(short) > 0.9 * len(deltas)
@@ -202,16 +241,20 @@ def test_deltas_have_no_sync_byte_and_small_ones_are_short():
         count, length = divmod(p[0] - SHORT, SHORT_LENGTHS)
         assert count + 1 in (1, 2) and len(p) == 1 + length + 1  # 1: the last before a keyframe
     assert len(frame_bytes(packets)) == sum(map(len, packets)) + len(packets) - len(deltas)
-    long = encode(header(), walk(60, 13), fpp=8)  # 8 frames: more than a short delta holds
+    long = encode(header(self_delimiting=False), walk(60, 13), fpp=8)  # 8 frames: more than a short delta holds
     assert [p[0] & 0x1F for p in long if p[0] >> 5 == DELTA] == [7] * 4  # those before a keyframe or the end: short
     assert len(frame_bytes(long)) == sum(map(len, long)) + sum(not is_delta(p[0]) for p in long)
     np.testing.assert_array_equal([f.params for f in frames(decode(frame_bytes(long))[0])],
-                                  [f.params for f in frames(decode(frame_bytes(encode(header(), walk(60, 13))))[0])])
+                                  [f.params for f in frames(decode(frame_bytes(encode(header(self_delimiting=False),
+                                                                                      walk(60, 13))))[0])])
 
 
-GOLDEN = ("fd004646440500030401a8c301abababababababababababababababababababababababababababababababab0002"
-          "057468657461037632783fd00000000000003f60624dd2f1a9fc376cddecfd400200080534a17623a110aba18237"
-          "fd40030437804af2fd8001059452")
+GOLDEN = ("fd004646440600030401a8c301abababababababababababababababababababababababababababababababab0002"
+          "057468657461037632783fd00000000000003f60624dd2f1a9fc982a758afd400007906a73750cc48094ce"
+          "fd40043722bd58fd8001059452")
+GOLDEN_V5 = ("fd004646440500030401a8c301abababababababababababababababababababababababababababababababab0002"
+             "057468657461037632783fd00000000000003f60624dd2f1a9fc376cddecfd400200080534a17623a110aba18237"
+             "fd40030437804af2fd8001059452")
 GOLDEN_V3 = ("fd004646440300030401a8c301abababababababababababababababababababababababababababababababab0002"
              "057468657461037632783fd00000000000003f60624dd2f1a9fcb2908b61fd4002008015b4a2bc40fca1401ca1a2d7"
              "fd400204d8028dfd8001059452")
@@ -263,8 +306,9 @@ def test_damage_is_concealed_until_the_next_keyframe(damage):
 
 
 def test_damage_to_a_long_delta_is_concealed_until_the_next_keyframe():
+    """Version 5 (no long deltas in version 6)."""
     params = walk(40, 13)
-    packets = encode(header(key_interval=20), params, fpp=8)  # header, key 0-7, deltas 8-15 and 16-19, key 20-27...
+    packets = encode(header(key_interval=20, self_delimiting=False), params, fpp=8)  # header, key 0-7, deltas 8-15 and 16-19, key 20-27...
     assert packets[2][0] >> 5 == DELTA
     packets[2] = packets[2][:-1] + bytes([packets[2][-1] ^ 0x01])
     events, dec = decode(frame_bytes(packets))
@@ -373,7 +417,7 @@ def test_bitrate_estimate_is_what_the_stream_takes(sealed, divisor):
     from protocol.rate import sample_bits_per_second
     from protocol.secure import SecureSealer
 
-    h = header(divisor=divisor, key_interval=25 // divisor, skip_static=True)
+    h = header(divisor=divisor, key_interval=25 // divisor, skip_static=True, self_delimiting=not sealed)
     sample = [(p, True) for p in walk(25, len(PAPER_PARAMS), seed=4)]
     sealer = SecureSealer(bytes(32)) if sealed else None
     estimate = sample_bits_per_second(h, sample, 2, 1.0, sealer.overhead if sealed else 0)

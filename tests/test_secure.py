@@ -18,7 +18,8 @@ MODEL = bytes(range(256)) * 9  # three model chunks, contents opaque to the prot
 
 
 def clear_packets(names, fpp=2, n=60, model=b"") -> list[bytes]:
-    header = Header(25.0, names, steps_for(names), "ab" * 32, key_interval=25, model_size=len(model))
+    header = Header(25.0, names, steps_for(names), "ab" * 32, key_interval=25, model_size=len(model),
+                    self_delimiting=False)  # sealed streams carry version 5
     enc = PacketEncoder(header, fpp, model)
     t = np.arange(n)[:, None] / 25.0
     params = 0.01 * np.sin(2 * np.pi * 1.3 * t + np.arange(len(names)))
@@ -26,6 +27,17 @@ def clear_packets(names, fpp=2, n=60, model=b"") -> list[bytes]:
     for p in params:
         packets += enc.frame(p, True)
     return packets + enc.end()
+
+
+def test_version_6_packets_are_refused_for_sealing():
+    """A sealed byte stream reads each inner packet's length, which version 6's frames packets lack."""
+    header = Header(25.0, LAYOUTS["paper"], steps_for(LAYOUTS["paper"]), "ab" * 32)
+    enc = PacketEncoder(header, 2)
+    packets = enc.header() + [p for x in np.zeros((30, 16)) for p in enc.frame(x, True)]
+    sealer = SecureSealer(KEY)
+    for packet in (packets[0], packets[-1]):  # the header, a delta
+        with pytest.raises(BitstreamError, match="version 5"):
+            sealer.seal(packet)
 
 
 def events_of(decoder, packets) -> list:

@@ -1,0 +1,56 @@
+"""The binary arithmetic coder: both endings decode exactly, and the self-delimiting one knows its length."""
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from protocol.arith import AdaptiveBit, Decoder, Encoder, Incomplete
+
+
+def code(bits: list[int], models: list[int], first_byte_below: int = 256) -> Encoder:
+    """``bits`` coded with ``models[i]`` of three adaptive models (3: at probability 1/2)."""
+    enc, shared = Encoder(first_byte_below), [AdaptiveBit(), AdaptiveBit(5, 1), AdaptiveBit(0, 9)]
+    for bit, m in zip(bits, models):
+        enc.bit(bit, shared[m] if m < 3 else None)
+    return enc
+
+
+def read(dec: Decoder, models: list[int]) -> list[int]:
+    shared = [AdaptiveBit(), AdaptiveBit(5, 1), AdaptiveBit(0, 9)]
+    return [dec.bit(shared[m] if m < 3 else None) for m in models]
+
+
+BITS = st.lists(st.tuples(st.integers(0, 1), st.integers(0, 3)), min_size=1, max_size=300)
+
+
+@settings(max_examples=200, deadline=None)
+@given(BITS, st.binary(max_size=12), st.sampled_from([256, 0xFD]))
+def test_a_self_delimiting_code_decodes_whatever_follows_it(pairs, after, first_byte_below):
+    bits, models = [b for b, _ in pairs], [m for _, m in pairs]
+    enc = code(bits, models, first_byte_below)
+    data = enc.end()
+    assert data and data[0] < first_byte_below
+    dec = Decoder(data + after, first_byte_below, open_end=True)
+    assert read(dec, models) == bits
+    assert dec.end() == data and dec.trace == enc.trace
+
+
+@settings(max_examples=100, deadline=None)
+@given(BITS)
+def test_a_self_delimiting_code_cut_short_asks_for_more(pairs):
+    """No proper prefix of the code decides all its bits: a decoder waits rather than guess."""
+    bits, models = [b for b, _ in pairs], [m for _, m in pairs]
+    data = code(bits, models).end()
+    for cut in range(len(data)):
+        with pytest.raises(Incomplete):
+            read(Decoder(data[:cut], open_end=True), models)
+
+
+@settings(max_examples=200, deadline=None)
+@given(BITS)
+def test_the_shortest_ending_decodes_with_zeros_after_it(pairs):
+    bits, models = [b for b, _ in pairs], [m for _, m in pairs]
+    enc = code(bits, models)
+    data = enc.finish()
+    assert len(data) <= len(code(bits, models).end())
+    assert read(Decoder(data), models) == bits
