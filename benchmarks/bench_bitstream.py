@@ -20,7 +20,7 @@ import numpy as np
 
 from codec.deform import PAPER_PARAMS, Deformer, extended_params
 from codec.face_model import load_base_face
-from protocol.framing import KEY, SYNC, Delta, body_bits, is_delta
+from protocol.framing import DELTA, KEY, body_bits, kind_of
 from protocol.quantise import QUALITIES
 from protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, steps_for
 from sender.analysis import LAYOUTS
@@ -35,17 +35,8 @@ LABELS = {**{names: name for name, names in LAYOUTS.items()}, PAPER_PARAMS: "pap
 
 
 def payload_bits(packets: list[bytes]) -> int:
-    """Entropy-coded bits of key and delta packets (sync, type byte, length and check excluded;
-    version 6 codes its check inside the code: CRC-8 for a delta, CRC-16 for a keyframe packet)."""
-    bits = 0
-    for p in packets:
-        if isinstance(p, Delta):
-            bits += 8 * len(p) - 8
-        elif p[0] == SYNC and p[1] >> 5 == KEY:
-            bits += 8 * (len(p) - 2) - 16
-        elif p[0] >> 5 == KEY or is_delta(p[0]):
-            bits += body_bits(p)
-    return bits
+    """Entropy-coded bits of key and delta packets (sync, type byte, length and check excluded)."""
+    return sum(body_bits(p) for p in packets if kind_of(p) in (KEY, DELTA))
 
 
 def vertices(deformer: Deformer, layout: tuple[str, ...], params: np.ndarray) -> np.ndarray:

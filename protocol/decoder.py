@@ -122,9 +122,8 @@ class PacketDecoder:
         if got is None:
             raise Incomplete
         coded, start = got
-        group = GroupState(len(self.header.names), self.header.skip_static, models_for(self.header))
         dec = Decoder(bytes(buf[start:start + MAX_BODY]), SYNC, open_end=True)
-        decoded = [group.decode_key(dec)] + [group.decode_delta(dec) for _ in range(count - 1)]
+        group, decoded = self._key_frames(dec, count)
         data = self._checked(dec, KEY, bytes(buf[pos:start]), buf, pos, start)
         if data is None:
             return None
@@ -204,10 +203,13 @@ class PacketDecoder:
         if got is None:
             return None
         coded, pos = got
-        group = GroupState(len(self.header.names), self.header.skip_static, models_for(self.header))
-        dec = Decoder(packet.body[pos:])
-        decoded = [group.decode_key(dec)] + [group.decode_delta(dec) for _ in range(packet.count - 1)]
+        group, decoded = self._key_frames(Decoder(packet.body[pos:]), packet.count)
         return self._key_events(coded, group, decoded)
+
+    def _key_frames(self, dec: Decoder, count: int) -> tuple[GroupState, list]:
+        """A keyframe packet's fresh coding state and its ``count`` frames."""
+        group = GroupState(len(self.header.names), self.header.skip_static, models_for(self.header))
+        return group, [group.decode_key(dec)] + [group.decode_delta(dec) for _ in range(count - 1)]
 
     def _key_events(self, coded: int, group: GroupState, decoded: list) -> list:
         if coded < self._next or self.ended:

@@ -13,7 +13,7 @@ from codec.errors import BitstreamError
 from protocol.arith import Encoder
 from protocol.entropy import GroupState
 from protocol.framing import (DELTA, END, HEADER, KEY, MAX_BODY, MAX_COUNT, MODEL, SYNC, Delta, build, inner_check,
-                              is_delta, varint)
+                              kind_of, varint)
 from protocol.header import Header, encode_header
 from protocol.priors import models_for
 from protocol.quantise import DEAD_ZONE, hold_or_round
@@ -104,22 +104,21 @@ class PacketEncoder:
         """The pending packet; ``stop_flag``: the decoder cannot tell that it ends here (version 6
         then codes so in a delta packet)."""
         coder, group, self._coder = self._coder, self._group, None
+        if self._h.self_delimiting and self._kind == DELTA and stop_flag:
+            group.encode_more(coder, False)
+        group.end_packet()
         if not self._h.self_delimiting:
             body = coder.finish()
             if self._kind == KEY:
                 body = varint(self._first) + body
-            group.end_packet()
             return build(self._kind, body, self._count, self._first)
         if self._kind == DELTA:
-            if stop_flag:
-                group.encode_more(coder, False)
             head, covered = b"", self._first.to_bytes(4, "big")
         else:
             head = covered = bytes([KEY << 5 | self._count - 1]) + varint(self._first)
         value, bits = inner_check(self._kind, covered, coder.trace)
         for i in range(bits - 1, -1, -1):
             coder.bit(value >> i & 1)
-        group.end_packet()
         code = coder.end()
         if len(code) > MAX_BODY:
             raise BitstreamError(f"packet too large ({self._count} frames, {len(code)} bytes)")
@@ -150,5 +149,4 @@ def frame_bytes(packets: list[bytes], sealed: bool = False) -> bytes:
     ``sealed`` packets (protocol/secure.py) are opaque, so each has its sync byte."""
     if sealed:
         return b"".join(bytes([SYNC]) + p for p in packets)
-    return b"".join(p if p[0] == SYNC or isinstance(p, Delta) or is_delta(p[0]) else bytes([SYNC]) + p
-                    for p in packets)
+    return b"".join(p if p[0] == SYNC or kind_of(p) == DELTA else bytes([SYNC]) + p for p in packets)

@@ -80,9 +80,7 @@ def inner_check(kind: int, covered: bytes, trace: int) -> tuple[int, int]:
     CRC-16 for a keyframe packet, as in the older versions.
     """
     data = covered + trace.to_bytes((trace.bit_length() + 7) // 8, "big")
-    if kind == DELTA:
-        return _crc8(data), 8
-    return binascii.crc_hqx(data, 0xFFFF), 16
+    return (_crc8(data) if kind == DELTA else binascii.crc_hqx(data, 0xFFFF)), 8 * _CHECK[kind]
 
 
 def varint(n: int) -> bytes:
@@ -175,9 +173,21 @@ def packet_size(data: bytes, pos: int) -> int | None:
     return body_start - pos + n + _CHECK[kind]
 
 
-def body_bits(data: bytes) -> int:
-    """Bits of a whole packet's body (no sync byte): what the packet carries apart from its framing."""
-    return 8 * _layout(data, 0)[3]
+def kind_of(packet: bytes) -> int:
+    """The type of a packet as an encoder returns it: any version's, a version 6 one with its sync byte."""
+    if isinstance(packet, Delta) or is_short(packet[0]):
+        return DELTA
+    return packet[packet[0] == SYNC] >> 5
+
+
+def body_bits(packet: bytes) -> int:
+    """Bits of a packet as an encoder returns it, apart from its framing (sync and type bytes,
+    length, check; a version 6 keyframe packet's frame number counts as body, as before)."""
+    if isinstance(packet, Delta):
+        return 8 * (len(packet) - _CHECK[DELTA])
+    if packet[0] == SYNC:
+        return 8 * (len(packet) - 2 - _CHECK[KEY])
+    return 8 * _layout(packet, 0)[3]
 
 
 def parse(data: bytes, expected_frame: int) -> Packet:
