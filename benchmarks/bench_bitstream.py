@@ -14,6 +14,7 @@ paper's 13 parameters, and with head rotation (what fd-send sends).
 
 import argparse
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,9 +23,9 @@ from codec.deform import PAPER_PARAMS, Deformer, extended_params
 from codec.face_model import load_base_face
 from protocol.framing import DELTA, KEY, body_bits, kind_of
 from protocol.quantise import QUALITIES
-from protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, steps_for
+from protocol.stream import Frame, PacketEncoder, StreamDecoder, frame_bytes
 from sender.analysis import LAYOUTS
-from sender.session import first_basis
+from sender.session import first_basis, stream_header
 
 FACE_PX = 512 / 1.35  # receiver framing: the view is 1.35 face heights tall
 ANGLES = ("theta", "rx", "ry", "rz")
@@ -50,9 +51,9 @@ def bench(path: Path, layout: tuple[str, ...], quality: int, dead_zone: float, a
     fps = float(d["fps"])
     params = d["params"][:, [names.index(n) for n in layout]]
     basis = None if args.no_basis else first_basis(layout, fps, list(zip(params, d["found"])))
-    header = Header(fps, layout, steps_for(layout, quality), "00" * 32, quality=quality,
-                    divisor=args.divisor, skip_static=not args.no_static, basis=basis, trained=not args.untrained,
-                    self_delimiting=not args.lengths)
+    header = replace(stream_header(layout, fps, "00" * 32, quality, basis=basis, divisor=args.divisor,
+                                   sealed=args.lengths),
+                     skip_static=not args.no_static, trained=not args.untrained)
     enc = PacketEncoder(header, args.frames_per_packet, dead_zone=dead_zone)
     head = enc.header()
     packets, sent = [], {}
