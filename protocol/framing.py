@@ -55,7 +55,12 @@ def _crc8_table() -> list[int]:
 _CRC8 = _crc8_table()  # polynomial x^8 + x^2 + x + 1: every 1-3 bit error in a delta packet
 
 
-def _crc8(data: bytes) -> int:
+def _crc(width: int, data: bytes) -> int:
+    """The check of each width: CRC-32, CRC-16 (CCITT) or CRC-8."""
+    if width == 4:
+        return zlib.crc32(data)
+    if width == 2:
+        return binascii.crc_hqx(data, 0xFFFF)
     crc = 0
     for byte in data:
         crc = _CRC8[crc ^ byte]
@@ -63,12 +68,10 @@ def _crc8(data: bytes) -> int:
 
 
 def _check(kind: int, data: bytes, first_frame: int) -> bytes:
+    """A packet's trailing check; a delta's also covers its first frame number, which it does not carry."""
     width = _CHECK[kind]
-    if width == 4:
-        return zlib.crc32(data).to_bytes(4, "big")
-    if width == 2:
-        return binascii.crc_hqx(data, 0xFFFF).to_bytes(2, "big")
-    return bytes([_crc8(first_frame.to_bytes(4, "big") + data)])
+    covered = first_frame.to_bytes(4, "big") + data if width == 1 else data
+    return _crc(width, covered).to_bytes(width, "big")
 
 
 def inner_check(kind: int, covered: bytes, trace: int) -> tuple[int, int]:
@@ -79,8 +82,8 @@ def inner_check(kind: int, covered: bytes, trace: int) -> tuple[int, int]:
     behind a leading 1 (:attr:`protocol.arith.Encoder.trace`): CRC-8 for a delta,
     CRC-16 for a keyframe packet, as in the older versions.
     """
-    data = covered + trace.to_bytes((trace.bit_length() + 7) // 8, "big")
-    return (_crc8(data) if kind == DELTA else binascii.crc_hqx(data, 0xFFFF)), 8 * _CHECK[kind]
+    width = _CHECK[kind]
+    return _crc(width, covered + trace.to_bytes((trace.bit_length() + 7) // 8, "big")), 8 * width
 
 
 def varint(n: int) -> bytes:
