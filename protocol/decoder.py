@@ -13,8 +13,8 @@ from codec.errors import BitstreamError
 from protocol.arith import Decoder, Incomplete
 from protocol.entropy import GroupState
 from protocol.events import Damage, End, Frame, Model, Stats
-from protocol.framing import (DELTA, END, HEADER, KEY, MAX_BODY, MAX_COUNT, MODEL, SYNC, inner_check, is_delta,
-                              packet_size, parse, read_varint)
+from protocol.framing import (DELTA, END, HEADER, KEY, MAX_BODY, MAX_COUNT, MODEL, SYNC, frame_count, inner_check,
+                              is_delta, packet_size, packet_type, parse, read_varint)
 from protocol.header import Header, parse_header
 from protocol.priors import models_for
 
@@ -85,7 +85,7 @@ class PacketDecoder:
             return self._self_delimited(buf, pos, final, DELTA)
         if pos + 1 >= len(buf):
             return (None, 0) if final else None
-        if buf[pos + 1] >> 5 == KEY:
+        if packet_type(buf[pos + 1]) == KEY:
             got = self._self_delimited(buf, pos + 1, final, KEY)
             return got if got is None or got[0] is None else (got[0], got[1] + 1)
         try:
@@ -117,7 +117,7 @@ class PacketDecoder:
         return events, len(data)
 
     def _key6(self, buf: bytes, pos: int) -> tuple[list, bytes] | None:
-        count = (buf[pos] & 0x1F) + 1
+        count = frame_count(buf[pos])
         got = read_varint(buf, pos + 1, _MAX_FRAME)
         if got is None:
             raise Incomplete

@@ -13,7 +13,7 @@ from codec.errors import BitstreamError
 from protocol.arith import Encoder
 from protocol.entropy import GroupState
 from protocol.framing import (DELTA, END, HEADER, KEY, MAX_BODY, MAX_COUNT, MODEL, SYNC, Delta, build, inner_check,
-                              kind_of, varint)
+                              kind_of, type_byte, varint)
 from protocol.header import Header, encode_header
 from protocol.priors import models_for
 from protocol.quantise import DEAD_ZONE, hold_or_round
@@ -115,7 +115,7 @@ class PacketEncoder:
         if self._kind == DELTA:
             head, covered = b"", self._first.to_bytes(4, "big")
         else:
-            head = covered = bytes([KEY << 5 | self._count - 1]) + varint(self._first)
+            head = covered = bytes([type_byte(KEY, self._count)]) + varint(self._first)
         value, bits = inner_check(self._kind, covered, coder.trace)
         for i in range(bits - 1, -1, -1):
             coder.bit(value >> i & 1)

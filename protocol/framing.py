@@ -131,8 +131,24 @@ def build(kind: int, body: bytes, count: int = 0, first_frame: int = 0) -> bytes
     if kind == DELTA and count <= SHORT_COUNT and len(body) < SHORT_LENGTHS:
         data = bytes([SHORT + SHORT_LENGTHS * (count - 1) + len(body)]) + body
     else:
-        data = bytes([kind << 5 | (count - 1 if count else 0)]) + varint(len(body)) + body
+        data = bytes([type_byte(kind, count)]) + varint(len(body)) + body
     return data + _check(kind, data, first_frame)
+
+
+def type_byte(kind: int, count: int = 0) -> int:
+    """A packet's first byte (a short delta's apart): its type in the top 3 bits and, in a keyframe
+    or delta packet, its frame count less one in the low 5."""
+    return kind << 5 | (count - 1 if count else 0)
+
+
+def packet_type(first: int) -> int:
+    """The type a first byte made by :func:`type_byte` says."""
+    return first >> 5
+
+
+def frame_count(first: int) -> int:
+    """The frame count a keyframe or delta packet's first byte made by :func:`type_byte` says."""
+    return (first & 0x1F) + 1
 
 
 def is_short(first: int) -> bool:
@@ -142,7 +158,7 @@ def is_short(first: int) -> bool:
 
 def is_delta(first: int) -> bool:
     """Whether a packet starting with byte ``first`` is a delta, short or long (no sync byte before it)."""
-    return first >> 5 == DELTA or is_short(first)
+    return packet_type(first) == DELTA or is_short(first)
 
 
 def _layout(data: bytes, pos: int) -> tuple[int, int, int, int] | None:
@@ -154,14 +170,14 @@ def _layout(data: bytes, pos: int) -> tuple[int, int, int, int] | None:
     if is_short(first):
         count, n = divmod(first - SHORT, SHORT_LENGTHS)
         return DELTA, count + 1, pos + 1, n
-    kind = first >> 5
+    kind = packet_type(first)
     if kind not in _CHECK:
         raise BitstreamError(f"unknown packet type {kind}")
     length = read_varint(data, pos + 1, MAX_BODY)
     if length is None:
         return None
     n, body_start = length
-    return kind, (first & 0x1F) + 1 if kind in (KEY, DELTA) else 0, body_start, n
+    return kind, frame_count(first) if kind in (KEY, DELTA) else 0, body_start, n
 
 
 def packet_size(data: bytes, pos: int) -> int | None:
@@ -180,7 +196,7 @@ def kind_of(packet: bytes) -> int:
     """The type of a packet as an encoder returns it: any version's, a version 6 one with its sync byte."""
     if isinstance(packet, Delta) or is_short(packet[0]):
         return DELTA
-    return packet[packet[0] == SYNC] >> 5
+    return packet_type(packet[packet[0] == SYNC])
 
 
 def body_bits(packet: bytes) -> int:
