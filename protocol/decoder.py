@@ -13,8 +13,8 @@ from codec.errors import BitstreamError
 from protocol.arith import Decoder, Incomplete
 from protocol.entropy import GroupState
 from protocol.events import Damage, End, Frame, Model, Stats
-from protocol.framing import (DELTA, END, HEADER, KEY, MAX_BODY, MAX_COUNT, MODEL, SYNC, frame_count, inner_check,
-                              is_delta, packet_size, packet_type, parse, read_varint)
+from protocol.framing import (DELTA, END, HEADER, KEY, MAX_BODY, MODEL, SYNC, frame_count, inner_check,
+                              is_delta, packet_ends, packet_size, packet_type, parse, read_varint)
 from protocol.header import Header, parse_header
 from protocol.priors import models_for
 
@@ -138,7 +138,7 @@ class PacketDecoder:
             decoded, interval = [], self.header.key_interval
             while True:
                 decoded.append(group.decode_delta(dec))
-                if len(decoded) == MAX_COUNT or (self._next + len(decoded)) % interval == 0:
+                if packet_ends(len(decoded), self._next + len(decoded), interval):
                     break
                 if not group.decode_more(dec):
                     break

@@ -13,7 +13,7 @@ from codec.errors import BitstreamError
 from protocol.arith import Encoder
 from protocol.entropy import GroupState
 from protocol.framing import (DELTA, END, HEADER, KEY, MAX_BODY, MAX_COUNT, MODEL, SYNC, Delta, build, inner_check,
-                              kind_of, type_byte, varint)
+                              kind_of, packet_ends, type_byte, varint)
 from protocol.header import Header, encode_header
 from protocol.priors import models_for
 from protocol.quantise import DEAD_ZONE, hold_or_round
@@ -82,7 +82,7 @@ class PacketEncoder:
                 self._group.encode_more(self._coder, True)
             self._group.encode_delta(self._coder, values, face)
         self._count += 1
-        implied = self._count == MAX_COUNT or (coded + 1) % self._h.key_interval == 0
+        implied = packet_ends(self._count, coded + 1, self._h.key_interval)
         if implied or self._group.active >= self._fpp:
             return [self._flush(stop_flag=not implied)]
         return []

@@ -151,6 +151,12 @@ def frame_count(first: int) -> int:
     return (first & 0x1F) + 1
 
 
+def packet_ends(count: int, next_frame: int, key_interval: int) -> bool:
+    """Whether a frames packet of ``count`` frames ends before coded frame ``next_frame`` whatever
+    the encoder wants: it is full, or that frame is a keyframe (version 6 codes no "more" flag then)."""
+    return count == MAX_COUNT or next_frame % key_interval == 0
+
+
 def is_short(first: int) -> bool:
     """Whether a packet starting with byte ``first`` is a short delta."""
     return SHORT <= first < SHORT + SHORT_COUNT * SHORT_LENGTHS
