@@ -25,7 +25,7 @@ from protocol.framing import DELTA, KEY, body_bits, kind_of
 from protocol.quantise import QUALITIES
 from protocol.stream import Frame, PacketEncoder, StreamDecoder, frame_bytes
 from sender.analysis import LAYOUTS
-from sender.session import first_basis, stream_header
+from sender.session import first_basis, read_dump, stream_header
 
 FACE_PX = 512 / 1.35  # receiver framing: the view is 1.35 face heights tall
 ANGLES = ("theta", "rx", "ry", "rz")
@@ -46,11 +46,8 @@ def vertices(deformer: Deformer, layout: tuple[str, ...], params: np.ndarray) ->
 
 
 def bench(path: Path, layout: tuple[str, ...], quality: int, dead_zone: float, args, deformer: Deformer) -> str:
-    d = np.load(path)
-    names = tuple(str(n) for n in d["names"])
-    fps = float(d["fps"])
-    params = d["params"][:, [names.index(n) for n in layout]]
-    basis = None if args.no_basis else first_basis(layout, fps, list(zip(params, d["found"])))
+    _, fps, params, found = read_dump(path, layout)
+    basis = None if args.no_basis else first_basis(layout, fps, list(zip(params, found)))
     header = replace(stream_header(layout, fps, "00" * 32, quality, basis=basis, divisor=args.divisor,
                                    sealed=args.lengths),
                      skip_static=not args.no_static, trained=not args.untrained)
@@ -58,8 +55,8 @@ def bench(path: Path, layout: tuple[str, ...], quality: int, dead_zone: float, a
     head = enc.header()
     packets, sent = [], {}
     started = time.perf_counter()
-    for i, (x, found) in enumerate(zip(params, d["found"])):
-        packets += enc.frame(x, found)
+    for i, (x, seen) in enumerate(zip(params, found)):
+        packets += enc.frame(x, seen)
         if i % args.divisor == 0:
             sent[i] = enc.reconstruction
     packets += enc.end()
@@ -109,7 +106,7 @@ def main() -> None:
           "bit/s | max vertex err px | rms vertex err px | max angle err deg | encode fps | decode fps |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for path in args.dumps:
-        names = tuple(str(n) for n in np.load(path)["names"])
+        names = read_dump(path)[0]
         layouts = [PAPER_PARAMS, names] if names == LAYOUTS["paper"] else [names]
         for layout in layouts:
             for quality in args.qualities:

@@ -20,6 +20,7 @@ import numpy as np
 
 from protocol.secure import SecureOpener, SecureSealer
 from protocol.stream import Header, PacketEncoder, frame_bytes, steps_for
+from sender.session import read_dump
 
 ROOT = Path(__file__).resolve().parents[1]
 KEY = os.urandom(32)
@@ -31,8 +32,8 @@ def clip_params(dump: str | None) -> tuple[np.ndarray, np.ndarray, tuple[str, ..
 
         dump = str(Path(tempfile.mkdtemp()) / "sample.npz")
         send([str(ROOT / "samples" / "grid_bbaf2n.mpg"), "-o", os.devnull, "--dump", dump, "-q"])
-    d = np.load(dump)
-    return d["params"], d["found"], tuple(str(n) for n in d["names"]), float(d["fps"])
+    names, fps, params, found = read_dump(dump)
+    return params, found, names, fps
 
 
 def frame_packets(params, found, names, fps, fpp) -> list[bytes]:

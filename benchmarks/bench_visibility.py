@@ -20,7 +20,7 @@ from experiment.metrics import psnr, ssim
 from protocol.stream import PacketEncoder, frame_bytes
 from receiver.face_view import BACKGROUND, FaceView
 from sender.analysis import LAYOUTS
-from sender.session import first_basis, stream_header
+from sender.session import first_basis, read_dump, stream_header
 
 
 def face_pixels(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -29,11 +29,7 @@ def face_pixels(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def bench(path: Path, layout_name: str, qualities: list[int], args, face) -> list[str]:
-    d = np.load(path)
-    names = tuple(str(n) for n in d["names"])
-    layout = LAYOUTS[layout_name]
-    fps, found = float(d["fps"]), d["found"]
-    params = d["params"][:, [names.index(n) for n in layout]]
+    layout, fps, params, found = read_dump(path, LAYOUTS[layout_name])
     basis = first_basis(layout, fps, list(zip(params, found)))
     view = FaceView(stream_header(layout, fps, face.content_id, basis=basis), face, (args.size, args.size))
     reference = [view.render(p) for p in params]

@@ -25,14 +25,12 @@ from dataclasses import replace
 from pathlib import Path
 from unittest import mock
 
-import numpy as np
-
 from protocol import encoder as encoder_module
 from protocol.arith import AdaptiveBit
 from protocol.priors import PATH, key_name, models_for
 from protocol.quantise import QUALITIES
 from protocol.stream import PacketEncoder, frame_bytes
-from sender.session import first_basis, stream_header
+from sender.session import first_basis, read_dump, stream_header
 
 SCALE = 16
 
@@ -51,15 +49,10 @@ class CountingBit(AdaptiveBit):
         self.total[bit] += 1
 
 
-def load(path: Path) -> tuple[tuple[str, ...], float, np.ndarray, np.ndarray]:
-    d = np.load(path)
-    return tuple(str(n) for n in d["names"]), float(d["fps"]), d["params"], d["found"]
-
-
 def code(path: Path, quality: int, models) -> float:
     """Stream bits per frame of ``path`` coded as fd-send codes it, with ``models`` in place of
     :func:`protocol.priors.models_for` (None: a version 3 or 4 stream, flat models)."""
-    names, fps, params, found = load(path)
+    names, fps, params, found = read_dump(path)
     header = stream_header(names, fps, "00" * 32, quality, basis=first_basis(names, fps, list(zip(params, found))))
     if models is None:
         header = replace(header, trained=False)

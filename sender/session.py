@@ -59,6 +59,16 @@ def first_basis(names: tuple[str, ...], fps: float, frames: Sequence[tuple[np.nd
     return sample_basis(names, [params for params, seen in frames[:first_second(fps)] if seen])
 
 
+def read_dump(path, layout: tuple[str, ...] | None = None) -> tuple[tuple[str, ...], float, np.ndarray, np.ndarray]:
+    """(parameter names, fps, (n, k) unquantised parameters, (n,) face seen) of a file that
+    :meth:`SendSession.dump` wrote; with ``layout``, the parameters of those names only, in its order."""
+    with np.load(path) as d:
+        names, fps, params, found = tuple(str(n) for n in d["names"]), float(d["fps"]), d["params"], d["found"]
+    if layout is None:
+        return names, fps, params, found
+    return tuple(layout), fps, params[:, [names.index(n) for n in layout]], found
+
+
 class SendSession:
     """Opens the source and the models; :meth:`packets` yields the packets as frames are analysed.
 
