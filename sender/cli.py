@@ -69,7 +69,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "does, its motion basis being one already")
     p.add_argument("--send-every", type=int, choices=range(1, 17), default=1, metavar="N",
                    help="send one frame in N (1-16; default 1: every frame); the receiver interpolates "
-                        "the others linearly, so the rate falls by about 40 %% at N=2, but motion "
+                        "the others linearly, so the rate falls by about a third at N=2, but motion "
                         "faster than the frames sent is lost (on the dev clips up to 19 px at N=2 for the "
                         "paper set, docs/bitstream.md) and the receiver shows each frame N-1 frames later")
     p.add_argument("--frames-per-packet", type=int, choices=range(1, 33), default=2, metavar="N",
