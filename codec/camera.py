@@ -44,20 +44,20 @@ class Camera:
 
     @classmethod
     def perspective(cls, fov_y_deg: float, eye, target, up=(0, 1, 0),
-                    near: float = 0.01, far: float = 100.0) -> "Camera":
+                    near: float = 0.01, far: float = 100.0) -> Camera:
         if not 0.0 < fov_y_deg < 180.0:
             raise ValueError(f"fov_y_deg must be in (0, 180), got {fov_y_deg}")
         return cls._build("perspective", eye, target, up, float(fov_y_deg), 0.0, near, far)
 
     @classmethod
     def orthographic(cls, height: float, eye, target, up=(0, 1, 0),
-                     near: float = 0.01, far: float = 100.0) -> "Camera":
+                     near: float = 0.01, far: float = 100.0) -> Camera:
         if not height > 0.0 or not math.isfinite(height):
             raise ValueError(f"orthographic height must be positive, got {height}")
         return cls._build("orthographic", eye, target, up, 0.0, float(height), near, far)
 
     @classmethod
-    def _build(cls, kind, eye, target, up, fov, height, near, far) -> "Camera":
+    def _build(cls, kind, eye, target, up, fov, height, near, far) -> Camera:
         cam = cls(kind, _vec3(eye, "eye"), _vec3(target, "target"), _vec3(up, "up"),
                   fov, height, float(near), float(far))
         if not 0.0 < cam.near < cam.far < math.inf:

@@ -1,7 +1,7 @@
 """The paper's abstract deformation levels (section 3.3): expression -> Action Units -> parameters.
 
-samples/expressions.json maps an expression or viseme name to FACS AU
-intensities; samples/au_table.json maps each AU to named parameters of
+codec/data/expressions.json maps an expression or viseme name to FACS AU
+intensities; codec/data/au_table.json maps each AU to named parameters of
 EXTENDED_PARAMS at intensity 1. Both levels are face-independent; the result
 is linear in the intensities (lids clipped to at most 1, fully closed).
 """
@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+from codec.data import data_path
 from codec.deform import EXTENDED_PARAMS
-from codec.errors import InputError
+from common.errors import InputError
 
-SAMPLES = Path(__file__).resolve().parents[1] / "samples"
-AU_FILE = SAMPLES / "au_table.json"
-EXPRESSION_FILE = SAMPLES / "expressions.json"
+AU_FILE = data_path("au_table.json")
+EXPRESSION_FILE = data_path("expressions.json")
 LIDS = [EXTENDED_PARAMS.index("lid_l"), EXTENDED_PARAMS.index("lid_r")]
 
 
@@ -98,7 +98,7 @@ def load_tables(au_path: str | Path = AU_FILE, expression_path: str | Path = EXP
 
 @lru_cache(maxsize=1)
 def default_tables() -> Tables:
-    """The tables in samples/, read once."""
+    """The tables shipped in ``codec.data``, read once."""
     return load_tables()
 
 

@@ -7,7 +7,7 @@ Layout (little-endian)::
 
 The JSON holds the counts (``vertices``, ``faces``, ``texture`` bytes, and
 ``motion``: [moved vertices k, patterns c, what they are over], absent without a basis) and the
-feature points, regions and loops (``meta``, as samples/base_face/feature_points.json),
+feature points, regions and loops (``meta``, as codec/data/feature_points.json),
 so a file is complete on its own and the Deformer takes it unchanged. The
 motion basis (version 2; codec/motion_basis.py) is the moved vertices' indices
 <u2 (k) then the patterns <f4 (c, k, 3); version 1 files have none. The face
@@ -31,13 +31,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 from cryptography.exceptions import InvalidTag
-from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.ciphers.aead import AESGCM
-from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
-from codec.errors import InputError
 from codec.face_model import N_LANDMARKS, BaseFace, build_face, load_base_face, normalise
 from codec.motion_basis import MAX_COMPONENTS, OVER, MotionBasis
+from common.errors import InputError
+from common.keys import derive
 
 MAGIC = b"FDFACE"
 VERSION = 2
@@ -157,7 +156,7 @@ def _decode_texture(data: bytes, bad) -> np.ndarray:
 
 
 def _file_key(key: bytes, salt: bytes) -> AESGCM:
-    return AESGCM(HKDF(hashes.SHA256(), 32, salt, b"facedeform face file v1").derive(key))
+    return AESGCM(derive(key, salt, b"facedeform face file v1", 32))
 
 
 def seal_face(data: bytes, key: bytes) -> bytes:

@@ -22,10 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from codec.errors import InputError
+from codec.data import data_path
 from codec.motion_basis import MotionBasis
+from common.errors import InputError
 
-DEFAULT_DIR = Path(__file__).resolve().parents[1] / "samples" / "base_face"
+DEFAULT_DIR = data_path("")
 MESH_FILE = "canonical_face.pbtxt"
 FEATURES_FILE = "feature_points.json"
 N_LANDMARKS = 468
@@ -106,7 +107,7 @@ def _loop_faces(faces: np.ndarray, loops: list[list[int]]) -> np.ndarray:
 
 
 def load_base_face(path: str | Path | None = None) -> BaseFace:
-    """Load the base face from a directory (or its mesh file); default: samples/base_face."""
+    """Load the base face from a directory (or its mesh file); default: the one shipped in ``codec.data``."""
     p = DEFAULT_DIR if path is None else Path(path)
     folder = p.parent if p.is_file() else p
     if not folder.is_dir():

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codec.errors import InputError
+from common.errors import InputError
 
 MAX_COMPONENTS = 16
 OVER = ("rest", "paper")  # what the patterns are displacements from

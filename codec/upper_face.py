@@ -130,7 +130,7 @@ class EyeModel:
     iris_radius: float
 
     @classmethod
-    def fit(cls, face: BaseFace) -> "EyeModel":
+    def fit(cls, face: BaseFace) -> EyeModel:
         loops = [face.meta["loops"]["eye_left"], face.meta["loops"]["eye_right"]]
         x = face.vertices
         width = np.mean([np.linalg.norm(x[lp[0]] - x[lp[8]]) for lp in loops])  # corners: 0 and 8

@@ -13,7 +13,7 @@ from fractions import Fraction
 
 import numpy as np
 
-from codec.errors import InputError
+from common.errors import InputError
 
 os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its configuration banner unless told not to
 

@@ -6,7 +6,7 @@ import sys
 from functools import lru_cache
 from pathlib import Path
 
-from codec.cli import ArgumentParser, run_main
+from common.cli import ArgumentParser, run_main
 
 EPILOG = """examples:
   fd-experiment samples/grid_bbaf2n.mpg --out results/
@@ -99,7 +99,7 @@ def _map(function, tasks: list, args):
         try:
             from dask.distributed import Client, as_completed
         except ImportError:
-            from codec.errors import FdError
+            from common.errors import FdError
 
             raise FdError("--scheduler needs dask.distributed: pip install 'facedeform[cluster]'") from None
         with Client(args.scheduler) as client:

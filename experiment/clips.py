@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from codec.errors import NoFaceError
+from common.errors import NoFaceError
 from sender.sources import VideoSource
 
 MARGIN = 1.8  # crop side over the face's largest extent: forehead to chin with room around
@@ -75,8 +75,9 @@ def load(name: str, path: Path, fps: float) -> Clip:
 
 def write_lossless(path: Path, frames: list, fps: float) -> None:
     """(H, W, 3) uint8 RGB frames as lossless H.264 (4:2:0, QP 0) that OpenCV and PyAV read."""
-    import av
     from fractions import Fraction
+
+    import av
 
     with av.open(str(path), "w") as container:
         stream = container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from codec.errors import FdError
 from codec.motion_basis import MAX_COMPONENTS
+from common.errors import FdError
 from experiment import metrics
 from experiment.baselines import encode_decode
 from experiment.clips import Clip, read_y4m, track

@@ -9,12 +9,27 @@ header, another version) raises :class:`BitstreamError`.
 
 import numpy as np
 
-from codec.errors import BitstreamError
+from common.errors import BitstreamError
 from protocol.arith import Decoder, Incomplete
 from protocol.entropy import GroupState
 from protocol.events import Damage, End, Frame, Model, Stats
-from protocol.framing import (DELTA, END, HEADER, KEY, MAX_BODY, MODEL, SYNC, frame_count, inner_check,
-                              is_delta, packet_ends, packet_size, packet_type, parse, read_varint)
+from protocol.framing import (
+    DELTA,
+    END,
+    HEADER,
+    KEY,
+    MAX_BODY,
+    MODEL,
+    SYNC,
+    frame_count,
+    inner_check,
+    is_delta,
+    packet_ends,
+    packet_size,
+    packet_type,
+    parse,
+    read_varint,
+)
 from protocol.header import Header, parse_header
 from protocol.priors import models_for
 

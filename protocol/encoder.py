@@ -9,11 +9,26 @@ quantised value, so it is the only exact prediction of the receiver.
 
 import numpy as np
 
-from codec.errors import BitstreamError
+from common.errors import BitstreamError
 from protocol.arith import Encoder
 from protocol.entropy import GroupState
-from protocol.framing import (DELTA, END, HEADER, KEY, MAX_BODY, MAX_COUNT, MODEL, SYNC, Delta, build, inner_check,
-                              kind_of, packet_ends, type_byte, varint)
+from protocol.framing import (
+    DELTA,
+    END,
+    HEADER,
+    KEY,
+    MAX_BODY,
+    MAX_COUNT,
+    MODEL,
+    SYNC,
+    Delta,
+    build,
+    inner_check,
+    kind_of,
+    packet_ends,
+    type_byte,
+    varint,
+)
 from protocol.header import Header, encode_header
 from protocol.priors import models_for
 from protocol.quantise import DEAD_ZONE, hold_or_round
@@ -29,8 +44,8 @@ class PacketEncoder:
     Packets never span a keyframe; with ``header.skip_static`` a frame equal to
     the previous does not count towards ``frames_per_packet``. ``dead_zone``
     (steps, 0.5-4; 0.5: plain rounding) bounds each coded value's error (each parameter's, or
-    with the header's basis each coordinate's): see :func:`protocol.quantise.hold_or_round`. It holds across keyframes too, so a
-    still value does not jump once a second.
+    with the header's basis each coordinate's): see :func:`protocol.quantise.hold_or_round`.
+    It holds across keyframes too, so a still value does not jump once a second.
     """
 
     def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"",

@@ -22,7 +22,7 @@ many frames as the one before.
 
 from collections.abc import Callable
 
-from codec.errors import BitstreamError
+from common.errors import BitstreamError
 from protocol.arith import AdaptiveBit, Decoder, Encoder
 
 MAX_EXP = 24  # magnitudes below 2**25 steps; a longer prefix can only be damage

@@ -30,7 +30,7 @@ import binascii
 import zlib
 from dataclasses import dataclass
 
-from codec.errors import BitstreamError
+from common.errors import BitstreamError
 
 SYNC = 0xFD
 HEADER, MODEL, KEY, DELTA, END = range(5)

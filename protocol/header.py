@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codec.errors import BitstreamError
+from common.errors import BitstreamError
 from protocol.basis import basis_matrices
 from protocol.framing import read_varint, varint
 from protocol.quantise import dequantise

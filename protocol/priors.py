@@ -13,7 +13,7 @@ import json
 from functools import cache
 from pathlib import Path
 
-from codec.errors import FdError
+from common.errors import FdError
 from protocol.arith import AdaptiveBit
 from protocol.entropy import NewBit
 from protocol.header import Header

@@ -27,37 +27,20 @@ import hmac
 import os
 from dataclasses import dataclass
 
-from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.ciphers import Cipher, algorithms, modes
-from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
-from codec.errors import BitstreamError, InputError
+from common.errors import BitstreamError, InputError
+from common.keys import KEY_ID_BYTES, derive, key_id
 from protocol.framing import MAX_BODY, SYNC, Delta, packet_size
 
 MAGIC = b"FDS\x01"
-KEY_BYTES, SALT_BYTES, KEY_ID_BYTES = 32, 16, 4
+SALT_BYTES = 16
 DEFAULT_TAG_BITS = 32
 TAG_BITS = tuple(range(32, 129, 8))
 WINDOW = 64  # packets: later than this behind the newest is a replay (or useless anyway)
 COUNTER_BYTES = 2
 _MAX_PACKET = 1 + 2 + MAX_BODY + 4  # the longest inner packet: type, length, body, CRC-32
 _MAX_INDEX = 1 << 48
-
-
-def key_id(key: bytes) -> bytes:
-    return hashlib.sha256(b"facedeform key id" + key).digest()[:KEY_ID_BYTES]
-
-
-def parse_key(text: str) -> bytes:
-    """The key in a key file: 64 hex digits; lines starting with # are comments."""
-    lines = [line.strip() for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
-    try:
-        key = bytes.fromhex(lines[0]) if len(lines) == 1 else b""
-    except ValueError:
-        key = b""
-    if len(key) != KEY_BYTES:
-        raise InputError(f"not a key file: expected one line of {2 * KEY_BYTES} hex digits (make one with fd-keygen)")
-    return key
 
 
 def preamble_size(tag_bytes: int) -> int:
@@ -68,7 +51,7 @@ class _Keys:
     """The stream's cipher key, IV and MAC key, derived from the pre-shared key and the salt."""
 
     def __init__(self, key: bytes, salt: bytes) -> None:
-        material = HKDF(hashes.SHA256(), 72, salt, b"facedeform stream v1").derive(key)
+        material = derive(key, salt, b"facedeform stream v1", 72)
         self.cipher = algorithms.AES(material[:32])
         self.iv, self.mac = material[32:40], material[40:]
 

@@ -8,7 +8,7 @@ resumes at the next sync byte); a datagram that fails is just dropped, since it
 may not be ours at all (a lost packet of ours shows at the next delta's check).
 """
 
-from codec.errors import BitstreamError
+from common.errors import BitstreamError
 from protocol.decoder import MAX_SEEK, ByteStreamDecoder, PacketDecoder, WrapsPacketDecoder
 from protocol.secure import MAGIC, WINDOW, SecureOpener, SecureSealer, SecureStats, preamble_size
 

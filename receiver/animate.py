@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from codec.cli import ArgumentParser, parse_size, run_main
+from common.cli import ArgumentParser, parse_size, run_main
 
 EPILOG = """script example (samples/animation.txt):
   0.0  neutral
@@ -32,7 +32,7 @@ examples:
 def parse_args(argv=None) -> argparse.Namespace:
     p = ArgumentParser(
         prog="fd-animate", epilog=EPILOG,
-        description="Render a timed script of expressions and visemes (samples/expressions.json) "
+        description="Render a timed script of expressions and visemes (codec/data/expressions.json) "
                     "as a video of the base face.")
     p.add_argument("script", help="text or JSON file of timed keys")
     p.add_argument("-o", "--output", default="-", metavar="FILE",
@@ -54,8 +54,8 @@ def main(argv=None) -> int:
 
 def read_script(path: str) -> tuple[np.ndarray, np.ndarray]:
     """(k,) increasing key times and (k, len(EXTENDED_PARAMS)) parameters of a script file."""
-    from codec.errors import InputError
     from codec.expressions import au_params, expression_params
+    from common.errors import InputError
 
     try:
         text = Path(path).read_text(encoding="utf-8")
@@ -87,8 +87,8 @@ def read_script(path: str) -> tuple[np.ndarray, np.ndarray]:
 
 def _line_params(words: list[str], where: str) -> np.ndarray:
     """Sum of 'name [intensity]' pairs of one text key."""
-    from codec.errors import InputError
     from codec.expressions import expression_params
+    from common.errors import InputError
 
     if not words:
         raise InputError(f"{where}: a time needs an expression after it")
@@ -120,8 +120,8 @@ def interpolate(times: np.ndarray, keys: np.ndarray, t: float) -> np.ndarray:
 
 def _run(args) -> int:
     from codec.deform import Deformer
-    from codec.errors import InputError
     from codec.face_model import load_base_face
+    from common.errors import InputError
     from receiver.face_view import face_renderer, portrait_camera
     from receiver.output import open_writer
 

@@ -5,7 +5,7 @@ import json
 import sys
 import time
 
-from codec.cli import ArgumentParser, parse_size, run_main
+from common.cli import ArgumentParser, parse_size, run_main
 
 EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
@@ -64,13 +64,13 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    from codec.errors import InputError
     from codec.face_file import load_face_file
+    from common.errors import InputError
+    from common.keys import read_key
+    from common.progress import progress_for
     from receiver.output import Display, open_writer
-    from codec.progress import progress_for
     from receiver.session import ReceiveSession
     from receiver.transport import Listener, open_file
-    from sender.keygen import read_key
 
     if args.output == "-" and sys.stdout.isatty():
         raise InputError("refusing to write video to a terminal: use -o FILE.mp4 or pipe it (| ffplay -)")

@@ -4,9 +4,9 @@ import numpy as np
 
 from codec.camera import Camera
 from codec.deform import EXTENDED_PARAMS, Deformer
-from codec.errors import BitstreamError
 from codec.face_model import BaseFace
 from codec.render import Renderer
+from common.errors import BitstreamError
 from protocol.stream import Header
 
 FIELD_OF_VIEW = 20.0  # degrees: a portrait lens, little perspective distortion

@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from codec.errors import InputError
+from common.errors import InputError
 
 VIDEO_SUFFIXES = (".mp4", ".mkv", ".mov")
 

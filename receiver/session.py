@@ -7,9 +7,9 @@ from fractions import Fraction
 
 import numpy as np
 
-from codec.errors import BitstreamError, InputError
 from codec.face_file import decode_face
 from codec.face_model import BaseFace, load_base_face
+from common.errors import BitstreamError, InputError
 from protocol.stream import Damage, End, Frame, Header, Model
 from receiver.face_view import FaceView
 

@@ -15,7 +15,7 @@ import time
 from collections.abc import Iterator
 from urllib.parse import urlsplit
 
-from codec.errors import BitstreamError, InputError
+from common.errors import BitstreamError, InputError
 from protocol.framing import SYNC
 from protocol.secure import MAGIC
 from protocol.secure_stream import SecureDatagramDecoder, SecureStreamDecoder
@@ -148,7 +148,7 @@ class Listener:
             self._sock.close()
             raise InputError(f"cannot listen on {self.scheme}://{host}:{port} ({exc.strerror or exc})") from None
         bound = self._sock.getsockname()
-        self.url = f"{self.scheme}://{'[%s]' % bound[0] if family == socket.AF_INET6 else bound[0]}:{bound[1]}"
+        self.url = f"{self.scheme}://{f'[{bound[0]}]' if family == socket.AF_INET6 else bound[0]}:{bound[1]}"
 
     def source(self):
         """UDP: the datagram source at once; TCP: the first connection's bytes, once it is accepted."""

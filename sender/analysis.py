@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from codec.deform import HEAD_DEPTH, PAPER_PARAMS, POSE_PARAMS, Deformer
-from codec.errors import InputError, NoFaceError
 from codec.face_model import BaseFace
 from codec.mouth import MOUTH_PARAMS
 from codec.upper_face import UPPER_PARAMS
+from common.errors import InputError, NoFaceError
 from protocol.quantise import VECTOR_STEP, steps_for
 from sender.calibrate import RestFace, choose_rest, fapu_ratios
 from sender.fit import ModelFit

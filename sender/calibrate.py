@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codec.errors import InputError
 from codec.face_model import BaseFace
+from common.errors import InputError
 
 MOUTH_CORNERS = (61, 291)
 SUBNASALE, UPPER_LIP, LOWER_LIP = 2, 13, 14
@@ -42,7 +42,8 @@ def fapu_ratios(neutral: np.ndarray, face: BaseFace) -> np.ndarray:
     upper face by eye separation (x) and eye-nose separation (y), eye loops by eye opening (y);
     depth by the mean of the two in-plane ratios."""
     def units(x):
-        d = lambda a, b: float(np.linalg.norm(x[a] - x[b]))
+        def d(a, b):
+            return float(np.linalg.norm(x[a] - x[b]))
         eye_mid = [x[list(e)].mean(axis=0) for e in EYES]
         mw = d(*MOUTH_CORNERS)
         mns = float(np.linalg.norm(x[SUBNASALE] - x[[UPPER_LIP, LOWER_LIP]].mean(axis=0)))

@@ -4,7 +4,7 @@ import argparse
 import json
 import sys
 
-from codec.cli import ArgumentParser, run_main
+from common.cli import ArgumentParser, run_main
 
 EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
@@ -73,7 +73,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "faster than the frames sent is lost (on the dev clips up to 19 px at N=2 for the "
                         "paper set, docs/bitstream.md) and the receiver shows each frame N-1 frames later")
     p.add_argument("--frames-per-packet", type=int, choices=range(1, 33), default=2, metavar="N",
-                   help="frames sent together (1-32): fewer framing bits, N-1 frames more latency (sent frames: times --send-every) (default 2)")
+                   help="frames sent together (1-32): fewer framing bits, N-1 frames more latency "
+                        "(sent frames: times --send-every) (default 2)")
     p.add_argument("--key", metavar="FILE",
                    help="encrypt and authenticate every packet (face model included) with this pre-shared "
                         "key (fd-keygen); costs 6 bytes per packet at the default tag (docs/security.md); "
@@ -106,9 +107,9 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    from codec.progress import progress_for
+    from common.keys import read_key
+    from common.progress import progress_for
     from protocol.secure import DEFAULT_TAG_BITS
-    from sender.keygen import read_key
     from sender.session import SendSession
     from sender.sources import open_source
     from sender.transport import open_sink

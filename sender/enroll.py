@@ -13,8 +13,8 @@ import sys
 import cv2
 import numpy as np
 
-from codec.cli import ArgumentParser, run_main
 from codec.motion_basis import MAX_COMPONENTS
+from common.cli import ArgumentParser, run_main
 from sender.motion import FRAMES_PER_PATTERN
 
 EPILOG = """examples:
@@ -85,7 +85,7 @@ def _run(args) -> int:
     from codec.face_file import decode_face, personal_face, save_face_file
     from codec.face_model import load_base_face
     from codec.texture import texture_from_frame
-    from sender.keygen import read_key
+    from common.keys import read_key
     from sender.sources import open_source
 
     key = read_key(args.key) if args.key else None
@@ -115,7 +115,7 @@ def _motion(args, face, neutral: int):
     """(the person's MotionBasis or None, frames with a face it was learned from)."""
     from itertools import islice
 
-    from codec.progress import progress_for
+    from common.progress import progress_for
     from sender.motion import learn_motion, residuals
     from sender.sources import open_source
     from sender.tracker import FaceTracker
@@ -140,7 +140,7 @@ def _neutral_frame(source, base, wanted: int | None, seconds: float):
     With ``wanted`` that frame; otherwise the most neutral frame of the first
     ``seconds`` after the face first appears.
     """
-    from codec.errors import InputError, NoFaceError
+    from common.errors import InputError, NoFaceError
     from sender.calibrate import lip_gap
     from sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
     from sender.tracker import FaceTracker

@@ -45,5 +45,6 @@ def fidelity(deformer: Deformer, targets: np.ndarray, params: np.ndarray, names,
     model = np.stack([deformer.deform_extended(p)[idx] for p in full])
     obs = np.asarray(targets, dtype=np.float64)[:, idx]
     iod = inter_ocular(base)
-    rms = lambda d: float(np.sqrt(np.mean(np.sum(d * d, axis=-1))))
+    def rms(d):
+        return float(np.sqrt(np.mean(np.sum(d * d, axis=-1))))
     return Fidelity(rms(obs - model) / iod, rms(obs - base[idx]) / iod)

@@ -21,8 +21,8 @@ trigonometric polynomial whose coefficients are two dot products per frame.
 import numpy as np
 
 from codec.deform import FREE, JAW_FOLLOWING, Deformer
-from codec.regions import FEATURE_NAMES
 from codec.mouth import MOUTH_PARAMS
+from codec.regions import FEATURE_NAMES
 from codec.upper_face import UPPER_PARAMS
 
 THETA_RANGE = (-15.0, 45.0)  # degrees: a little closing past rest, a wide yawn

@@ -6,9 +6,9 @@ from itertools import chain, islice
 
 import numpy as np
 
+from codec.deform import POSE_PARAMS
 from codec.face_file import decode_face, read_face_bytes
 from codec.face_model import load_base_face
-from codec.deform import POSE_PARAMS
 from codec.motion_basis import BASIS_PARAMS
 from protocol.basis import principal_basis
 from protocol.quantise import DEAD_ZONE

@@ -9,7 +9,7 @@ import socket
 import sys
 from urllib.parse import urlsplit
 
-from codec.errors import InputError
+from common.errors import InputError
 from protocol.stream import frame_bytes
 
 CONNECT_TIMEOUT = 5.0  # seconds

@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from codec.errors import BitstreamError
+from common.errors import BitstreamError
 from protocol.basis import MIN_MOTION, SCALE, principal_basis
 from protocol.framing import HEADER, build
 from protocol.header import encode_header, parse_header

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
 from codec.deform import PAPER_PARAMS, PRESETS, Deformer
-from codec.errors import InputError
+from common.errors import InputError
 from codec.face_model import content_id, load_base_face
 from codec.regions import FEATURE_NAMES, project_weights
 

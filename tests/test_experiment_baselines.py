@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from codec.errors import InputError
+from common.errors import InputError
 from experiment.baselines import CODECS, encode_decode
 
 

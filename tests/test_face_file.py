@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from codec.deform import PAPER_PARAMS, Deformer
-from codec.errors import InputError
+from common.errors import InputError
 from codec.face_file import decode_face, encode_face, load_face_file, personal_face, save_face_file
 from codec.face_model import load_base_face
 

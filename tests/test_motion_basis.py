@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
-from codec.errors import InputError
+from common.errors import InputError
 from codec.face_file import decode_face, encode_face, load_face_file
 from codec.face_model import load_base_face
 from codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS, MotionBasis, learn_basis

@@ -8,7 +8,7 @@ import av
 import numpy as np
 import pytest
 
-from codec.errors import InputError
+from common.errors import InputError
 from receiver.output import open_writer
 
 

@@ -2,7 +2,7 @@
 
 import io
 
-from codec.progress import Progress, progress_for
+from common.progress import Progress, progress_for
 
 
 class Terminal(io.StringIO):

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from codec.deform import PAPER_PARAMS
-from codec.errors import BitstreamError
+from common.errors import BitstreamError
 from protocol.framing import DELTA, HEADER, SHORT, SHORT_LENGTHS, SYNC, Delta, build, is_delta, is_short
 from protocol.basis import SCALE
 from protocol.header import MAX_MODEL, encode_header

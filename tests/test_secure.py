@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from codec.deform import PAPER_PARAMS, POSE_PARAMS
-from codec.errors import BitstreamError, InputError
+from common.errors import BitstreamError, InputError
 from codec.upper_face import UPPER_PARAMS
-from protocol.secure import SecureOpener, SecureSealer, key_id, parse_key, preamble_size
+from common.keys import key_id, parse_key
+from protocol.secure import SecureOpener, SecureSealer, preamble_size
 from protocol.secure_stream import SecureDatagramDecoder, SecureStreamDecoder, seal_stream
 from protocol.stream import DatagramDecoder, Frame, Header, Model, PacketEncoder, frame_bytes, steps_for
 

@@ -11,12 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codec.errors import InputError
+from common.errors import InputError
 from codec.face_file import decode_face, load_face_file, save_face_file
 from protocol.secure import SecureSealer
 from protocol.secure_stream import seal_stream
 from protocol.stream import PacketEncoder, frame_bytes
-from sender.keygen import main as keygen, read_key
+from common.keys import read_key
+from sender.keygen import main as keygen
 from tests.test_output import parse_y4m
 from tests.test_receiver_tools import (DEADLINE, N, a_face, assert_one_line, finish, header, run_main,
                                        smooth_tracks, start_listener, stream_packets)

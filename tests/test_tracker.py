@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from codec.errors import InputError
+from common.errors import InputError
 from sender.detector import load_model
 from sender.tracker import FaceTracker
 

@@ -30,7 +30,7 @@ def parse_size(text: str) -> tuple[int, int]:
 
 def run_main(prog: str, body: Callable[[], int]) -> int:
     """Runs ``body``; user mistakes (FdError) and closed pipes become one line and exit 1."""
-    from codec.errors import FdError
+    from common.errors import FdError
 
     try:
         return body()
