@@ -1,6 +1,8 @@
 """What every command-line tool of the project shares: one-line errors and exit codes."""
 
 import argparse
+import math
+import os
 import sys
 from collections.abc import Callable
 
@@ -26,6 +28,52 @@ def parse_size(text: str) -> tuple[int, int]:
     if not all(16 <= s <= 4096 and s % 2 == 0 for s in size):
         raise argparse.ArgumentTypeError(f"size {text!r} out of range (even numbers from 16 to 4096)")
     return size
+
+
+def number(lo: float | None = None, hi: float | None = None, kind: type = float) -> Callable[[str], float]:
+    """An argparse type for a finite number in [lo, hi] (None: unbounded): NaN, infinities and
+    values out of range are refused with one line, as every other wrong argument."""
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a{'n integer' if kind is int else ' number'}: {text!r}") from None
+        if not in_range(value, lo, hi):
+            raise argparse.ArgumentTypeError(f"{text!r} is out of range ({describe_range(lo, hi)})")
+        return value
+
+    return parse
+
+
+def in_range(value: float, lo: float | None, hi: float | None) -> bool:
+    """Finite and within [lo, hi] (None: no bound on that side)."""
+    return math.isfinite(value) and (lo is None or value >= lo) and (hi is None or value <= hi)
+
+
+def describe_range(lo: float | None, hi: float | None) -> str:
+    """[lo, hi] in words."""
+    if hi is None:
+        return f"at least {lo:g}"
+    return f"at most {hi:g}" if lo is None else f"{lo:g} to {hi:g}"
+
+
+def check_output(path: str, option: str, inputs: tuple[str | None, ...] = ()) -> None:
+    """Refuses, before any work, an output file that cannot be written (missing or read-only folder, a
+    folder itself) or that is one of the ``inputs`` (writing would destroy what is being read)."""
+    from common.errors import InputError
+
+    if path == "-" or "://" in path:
+        return
+    folder = os.path.dirname(os.path.abspath(path))
+    if os.path.isdir(path):
+        raise InputError(f"{option} {path}: is a folder, not a file")
+    if not os.path.isdir(folder):
+        raise InputError(f"{option} {path}: the folder {folder} does not exist")
+    if not os.access(folder, os.W_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
+        raise InputError(f"{option} {path}: not writable")
+    for source in inputs:
+        if source and os.path.exists(source) and os.path.exists(path) and os.path.samefile(source, path):
+            raise InputError(f"{option} {path}: is the input; refusing to write over what is being read")
 
 
 def run_main(prog: str, body: Callable[[], int]) -> int:

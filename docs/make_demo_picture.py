@@ -15,6 +15,7 @@ from codec.face_model import load_base_face
 from protocol.stream import Frame, StreamDecoder
 from receiver.face_view import FaceView
 from sender.enroll import main as enroll
+from sender.config import SendConfig
 from sender.session import SendSession
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -25,7 +26,7 @@ HEIGHT = 288
 
 def rendered(face_file: str | None) -> tuple[list, int]:
     """Each chosen frame as the receiver draws it, and the stream's bits per frame."""
-    session = SendSession(str(CLIP), face_file=face_file)
+    session = SendSession(str(CLIP), SendConfig(face_file=face_file))
     decoder = StreamDecoder()
     events = [e for chunk in session.stream() for e in decoder.feed(chunk)] + decoder.close()
     decoded = [e for e in events if isinstance(e, Frame)]

@@ -4,7 +4,10 @@ import argparse
 import json
 import sys
 
-from common.cli import ArgumentParser, run_main
+from common.cli import ArgumentParser, check_output, number, run_main
+from protocol.secure import TAG_BITS
+from sender.analysis import LAYOUT_NAMES
+from sender.config import LIMITS, SendConfig, default
 
 EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
@@ -25,12 +28,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("input", nargs="?",
                    help="video file (anything OpenCV or PyAV reads), a directory of images, "
                         "or a numbered pattern such as frames/%%04d.png")
-    p.add_argument("--camera", type=int, metavar="N", help="read camera N instead of a file (Ctrl-C stops)")
-    p.add_argument("--fps", type=float, default=25.0, help="frame rate of an image sequence (default 25)")
+    p.add_argument("--camera", type=number(0, None, kind=int), metavar="N",
+                   help="read camera N instead of a file (Ctrl-C stops)")
+    p.add_argument("--fps", type=number(0.1, 1000), default=25.0,
+                   help="frame rate of an image sequence, 0.1-1000 (default 25)")
     p.add_argument("-o", "--output", default="-", metavar="DEST",
                    help="a file, - for stdout (default), tcp://HOST:PORT (connect and write the stream) "
                         "or udp://HOST:PORT (one packet per datagram)")
-    p.add_argument("--params", choices=("auto", "paper", "full", "mouth", "personal"), default="auto",
+    p.add_argument("--params", choices=LAYOUT_NAMES, default=default("layout"),
                    help="auto (default): personal when the --face file carries a motion basis, else mouth; "
                         "paper: the paper's 13 parameters (jaw angle, four mouth points) and head rotation; "
                         "full: the paper's plus brows, lids, cheeks and head translation; "
@@ -43,44 +48,47 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "generic base face")
     p.add_argument("--face-by-id", action="store_true",
                    help="with --face, send only the model's id: the receiver holds the file (fd-recv --face)")
-    p.add_argument("--neutral", type=int, metavar="FRAME",
+    p.add_argument("--neutral", type=number(*LIMITS["neutral"], kind=int), metavar="FRAME",
                    help="frame index (from 0) of the person's rest face; default: the frame of the "
                         "first second with the mouth most closed")
-    p.add_argument("--smoothing", type=float, default=1.0, metavar="S",
-                   help="temporal smoothing strength: 0 off, 1 default, 2 twice as strong "
-                        "(steadier and cheaper, slower to follow)")
+    p.add_argument("--smoothing", type=number(*LIMITS["smoothing"]), default=default("smoothing"), metavar="S",
+                   help="temporal smoothing strength: 0 off, 1 (default), 2 twice as strong "
+                        f"(steadier and cheaper, slower to follow), at most {LIMITS['smoothing'][1]:g}")
     rate = p.add_mutually_exclusive_group()
-    rate.add_argument("--bitrate", type=float, metavar="KBPS",
+    rate.add_argument("--bitrate", type=number(LIMITS["bitrate"][0] / 1000, LIMITS["bitrate"][1] / 1000),
+                      metavar="KBPS",
                       help="aim at this many kbit/s instead of a --quality: the finest level that codes the "
                            "first second of this call within it (a choice made once, not a cap: livelier "
                            "talking later costs more)")
-    rate.add_argument("--quality", type=int, choices=range(1, 6), default=3, metavar="1-5",
-                   help="quantiser fineness, 1 (coarse, fewest bits) to 5 (fine); each level halves the "
-                        "steps of the one below (default 3: 0.25 degree, 0.002 face heights)")
-    p.add_argument("--dead-zone", type=float, default=1.0, metavar="STEPS",
+    rate.add_argument("--quality", type=number(*LIMITS["quality"], kind=int), default=default("quality"),
+                      metavar="1-5",
+                      help="quantiser fineness, 1 (coarse, fewest bits) to 5 (fine); each level halves the "
+                           "steps of the one below (default %(default)s)")
+    p.add_argument("--dead-zone", type=number(*LIMITS["dead_zone"]), default=default("dead_zone"), metavar="STEPS",
                    help="a parameter is resent only once it is this many quantiser steps from what the "
-                        "receiver shows (0.5-4; default 1): tracker jitter below it costs no bits "
-                        "and a still face does not flicker, at up to this many steps of error; 0.5 is plain "
-                        "rounding (error at most half a step)")
+                        f"receiver shows ({_span('dead_zone')}; default %(default)s): tracker jitter below it costs "
+                        "no bits and a still face does not flicker, at up to this many steps of error; 0.5 is "
+                        "plain rounding (error at most half a step)")
     p.add_argument("--no-basis", action="store_true",
                    help="quantise each parameter on its own; by default the stream codes the principal "
-                        "components of the first second's motion (head pose apart), which costs 10-20 %% "
-                        "fewer bits for the same error (docs/bitstream.md); the personal layout never "
-                        "does, its motion basis being one already")
-    p.add_argument("--send-every", type=int, choices=range(1, 17), default=1, metavar="N",
-                   help="send one frame in N (1-16; default 1: every frame); the receiver interpolates "
-                        "the others linearly, so the rate falls by about a third at N=2, but motion "
-                        "faster than the frames sent is lost (on the dev clips up to 19 px at N=2 for the "
-                        "paper set, docs/bitstream.md) and the receiver shows each frame N-1 frames later")
-    p.add_argument("--frames-per-packet", type=int, choices=range(1, 33), default=2, metavar="N",
-                   help="frames sent together (1-32): fewer framing bits, N-1 frames more latency "
-                        "(sent frames: times --send-every) (default 2)")
+                        "components of the first second's motion (head pose apart), which costs fewer bits "
+                        "for the same error (docs/bitstream.md); the personal layout never does, its motion "
+                        "basis being one already")
+    p.add_argument("--send-every", type=number(*LIMITS["divisor"], kind=int), default=default("divisor"),
+                   metavar="N",
+                   help=f"send one frame in N ({_span('divisor')}; default %(default)s: every frame); the "
+                        "receiver interpolates the others linearly: fewer bits, but motion faster than the frames "
+                        "sent is lost (docs/bitstream.md) and the receiver shows each frame N-1 frames later")
+    p.add_argument("--frames-per-packet", type=number(*LIMITS["frames_per_packet"], kind=int),
+                   default=default("frames_per_packet"), metavar="N",
+                   help=f"frames sent together ({_span('frames_per_packet')}): fewer framing bits, N-1 frames "
+                        "more latency (sent frames: times --send-every) (default %(default)s)")
     p.add_argument("--key", metavar="FILE",
                    help="encrypt and authenticate every packet (face model included) with this pre-shared "
-                        "key (fd-keygen); costs 6 bytes per packet at the default tag (docs/security.md); "
-                        "also opens a --face file sealed with it")
-    p.add_argument("--tag-bits", type=int, choices=range(32, 129, 8), metavar="N",
-                   help="with --key: authentication tag length, 32 (default) to 128 in steps of 8")
+                        "key (fd-keygen; docs/security.md); also opens a --face file sealed with it")
+    p.add_argument("--tag-bits", type=int, choices=TAG_BITS, metavar="N",
+                   help=f"with --key: authentication tag length, {default('tag_bits')} (default) to "
+                        f"{TAG_BITS[-1]} in steps of 8")
     p.add_argument("--dump", metavar="FILE.npz",
                    help="also write per-frame landmarks, pose-free targets, head pose and unquantised parameters")
     p.add_argument("--json", action="store_true", help="statistics as one JSON object on stderr")
@@ -88,17 +96,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if (args.input is None) == (args.camera is None):
         p.error("give an input file or --camera N (one of them)")
-    if args.neutral is not None and args.neutral < 0:
-        p.error("--neutral takes a frame index from 0")
-    if args.smoothing < 0:
-        p.error("--smoothing must be 0 or more")
     if args.tag_bits is not None and args.key is None:
         p.error("--tag-bits goes with --key FILE")
     if args.face_by_id and args.face is None:
         p.error("--face-by-id goes with --face FILE")
-    if args.bitrate is not None and args.bitrate <= 0:
-        p.error("--bitrate takes a positive number of kbit/s")
     return args
+
+
+def _span(name: str) -> str:
+    lo, hi = LIMITS[name]
+    return f"{lo:g}-{hi:g}"
 
 
 def main(argv=None) -> int:
@@ -109,19 +116,21 @@ def main(argv=None) -> int:
 def _run(args) -> int:
     from common.keys import read_key
     from common.progress import progress_for
-    from protocol.secure import DEFAULT_TAG_BITS
     from sender.session import SendSession
     from sender.sources import open_source
     from sender.transport import open_sink
 
+    check_output(args.output, "-o", (args.input,))
+    if args.dump:
+        check_output(args.dump, "--dump", (args.input,))
     key = read_key(args.key) if args.key else None
     source = open_source(args.input, args.camera, args.fps)
     progress = progress_for("fd-send", args.quiet or args.json) if source.length else None
-    session = SendSession(source, args.quality, args.frames_per_packet, args.params,
-                          args.neutral, args.smoothing, args.face, embed_face=not args.face_by_id,
-                          key=key, tag_bits=args.tag_bits or DEFAULT_TAG_BITS, dead_zone=args.dead_zone,
-                          bitrate=None if args.bitrate is None else 1000 * args.bitrate, basis=not args.no_basis,
-                          divisor=args.send_every)
+    config = SendConfig(args.quality, args.frames_per_packet, args.params, args.neutral, args.smoothing, args.face,
+                        embed_face=not args.face_by_id, key=key, tag_bits=args.tag_bits or default("tag_bits"),
+                        dead_zone=args.dead_zone, bitrate=None if args.bitrate is None else 1000 * args.bitrate,
+                        basis=not args.no_basis, divisor=args.send_every)
+    session = SendSession(source, config)
     sink = None
     try:
         for packets in session.packets():

@@ -11,22 +11,23 @@ from codec.face_file import decode_face, read_face_bytes
 from codec.face_model import load_base_face
 from codec.motion_basis import BASIS_PARAMS
 from protocol.basis import principal_basis
-from protocol.quantise import DEAD_ZONE
-from protocol.secure import DEFAULT_TAG_BITS, SecureSealer
+from protocol.secure import SecureSealer
 from protocol.stream import DEFAULT_QUALITY, Header, PacketEncoder, frame_bytes, quality_for_bitrate, steps_for
 from sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
+from sender.config import SendConfig
 from sender.sources import open_source
 
 
 def stream_header(names: tuple[str, ...], fps: float, face_id: str, quality: int = DEFAULT_QUALITY,
                   model_size: int = 0, basis: np.ndarray | None = None, divisor: int = 1,
-                  sealed: bool = False) -> Header:
+                  sealed: bool = False, size: tuple[int, int] = (0, 0)) -> Header:
     """The header fd-send writes: a keyframe a second (of the frames sent: one in ``divisor``), and
     static-frame flags (with the dead zone a still face sends unchanged frames, a flag each);
-    version 6, or 5 for a ``sealed`` stream (whose byte stream reads packet lengths)."""
+    version 6, or 5 for a ``sealed`` stream (whose byte stream reads packet lengths); ``size``: the
+    source's (width, height) in pixels."""
     return Header(fps, names, steps_for(names, quality), face_id, quality=quality,
                   key_interval=max(1, min(255, round(fps / divisor))), divisor=divisor, skip_static=True,
-                  model_size=model_size, basis=basis, self_delimiting=not sealed)
+                  model_size=model_size, basis=basis, self_delimiting=not sealed, width=size[0], height=size[1])
 
 
 def sample_basis(names: tuple[str, ...], sample: list[np.ndarray]) -> np.ndarray | None:
@@ -73,41 +74,27 @@ class SendSession:
     """Opens the source and the models; :meth:`packets` yields the packets as frames are analysed.
 
     source: a path (video file, image directory or %d pattern) or an opened
-    source (``sender.sources``); layout: one of ``analysis.LAYOUT_NAMES``;
-    neutral: the rest frame's index (default: chosen in the first second);
-    smoothing: One Euro strength (0: off); face_file: a personal face model (fd-enroll) to fit
-    and render instead of the generic face, carried in the stream when ``embed_face``; key: a
-    pre-shared key (``protocol.secure``) to seal every packet with, tags of ``tag_bits``;
-    dead_zone: the encoder's dead zone in quantiser steps (0.5: plain rounding); bitrate: bit/s
-    to aim at instead of ``quality``: the finest level that codes the first second of the call
-    within it (``protocol.rate``), chosen before the header goes out; basis: code the principal
-    components of the first second's motion (``protocol.basis``) instead of each parameter (not
-    for the personal layout, whose motion basis is one already); divisor: send one frame in this many,
-    the receiver interpolates the others (fewer bits, and fast motion between sent frames is lost).
+    source (``sender.sources``); config: how the call is coded (:class:`sender.config.SendConfig`).
     """
 
-    def __init__(self, source, quality: int = DEFAULT_QUALITY, frames_per_packet: int = 2,
-                 layout: str = "auto", neutral: int | None = None, smoothing: float = 1.0,
-                 face_file: str | None = None, embed_face: bool = True, key: bytes | None = None,
-                 tag_bits: int = DEFAULT_TAG_BITS, dead_zone: float = DEAD_ZONE,
-                 bitrate: float | None = None, basis: bool = True, divisor: int = 1) -> None:
+    def __init__(self, source, config: SendConfig | None = None) -> None:
         from sender.tracker import FaceTracker
 
+        self.config = config = config or SendConfig()
         self.source = open_source(source) if isinstance(source, str) else source
         model = b""
-        if face_file is None:
+        if config.face_file is None:
             face = load_base_face()
         else:
-            data = read_face_bytes(face_file, key)  # a sealed file opens with the stream's key
-            face = decode_face(data, face_file)
-            model = data if embed_face else b""
+            data = read_face_bytes(config.face_file, config.key)  # a sealed file opens with the stream's key
+            face = decode_face(data, config.face_file)
+            model = data if config.embed_face else b""
         fps = self.source.fps
-        self.analyser = FaceAnalyser(FaceTracker(), face, fps, layout, calibration_frames=round(fps),
-                                     neutral=neutral, smoothing=Smoothing(smoothing))
-        self._face_id, self._model, self._fpp, self._dead_zone = face.content_id, model, frames_per_packet, dead_zone
-        self._bitrate, self._use_basis, self._basis, self._divisor = bitrate, basis, None, divisor
-        self.sealer = None if key is None else SecureSealer(key, tag_bits)
-        self._configure(quality)
+        self.analyser = FaceAnalyser(FaceTracker(), face, fps, config.layout, calibration_frames=round(fps),
+                                     neutral=config.neutral, smoothing=Smoothing(config.smoothing))
+        self._face_id, self._model, self._basis = face.content_id, model, None
+        self.sealer = None if config.key is None else SecureSealer(config.key, config.tag_bits)
+        self._configure(config.quality)
         self.frames: list[FrameAnalysis] = []
         self.stream_bytes = 0  # as a byte stream (sync bytes included), header excluded
         self.header_bytes = 0
@@ -121,26 +108,27 @@ class SendSession:
 
     def _header(self, quality: int) -> Header:
         return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model),
-                             self._basis, self._divisor, self.sealed)
+                             self._basis, self.config.divisor, self.sealed, self.source.size)
 
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)
-        self.encoder = PacketEncoder(self.header, self._fpp, self._model, self._dead_zone)
+        self.encoder = PacketEncoder(self.header, self.config.frames_per_packet, self._model, self.config.dead_zone)
 
     def packets(self) -> Iterator[list[bytes]]:
         """Lists of packets: the header once a face is known (a clip without one sends nothing),
         then what each frame completes, then the end mark."""
         results = self.analyser.run(self.source.frames())
-        if self._bitrate is not None or self._use_basis:  # the analyser holds the first second anyway
+        bitrate = self.config.bitrate
+        if bitrate is not None or self.config.basis:  # the analyser holds the first second anyway
             fps = self.source.fps
             first = list(islice(results, first_second(fps)))
             sample = first_frames(fps, first)
-            if self._use_basis:
+            if self.config.basis:
                 self._basis = first_basis(self.analyser.names, fps, sample)
             quality = self.header.quality
-            if first and self._bitrate is not None:
-                quality = quality_for_bitrate(self._header, sample, self._bitrate, self._fpp,
-                                              self._dead_zone, 0 if self.sealer is None else self.sealer.overhead)
+            if first and bitrate is not None:
+                quality = quality_for_bitrate(self._header, sample, bitrate, self.config.frames_per_packet,
+                                              self.config.dead_zone, 0 if self.sealer is None else self.sealer.overhead)
             self._configure(quality)
             results = chain(first, results)
         for seq, result in enumerate(results):

@@ -72,6 +72,49 @@ def test_input_errors_are_one_line(args, message):
     assert message in result.stderr.decode()
 
 
+@pytest.mark.parametrize("args, message", [
+    (["--bitrate", "nan"], "out of range"),
+    (["--smoothing", "inf"], "out of range"),
+    (["--fps", "-1"], "out of range"),
+    (["--fps", "0"], "out of range"),
+    (["--fps", "nan"], "out of range"),
+    (["--quality", "9"], "out of range"),
+    (["--send-every", "x"], "not an integer"),
+])
+def test_absurd_numbers_are_refused_before_any_work(args, message):
+    result = run(SEND + [str(CLIP), "-o", "/dev/null", *args])
+    assert result.returncode == 2 and message in result.stderr.decode()
+    assert len(result.stderr.decode().strip().splitlines()) == 1
+
+
+def test_output_paths_are_checked_before_the_work(tmp_path):
+    own = tmp_path / "talk.mpg"
+    own.write_bytes(CLIP.read_bytes())
+    result = run(SEND + [str(own), "-o", str(own)])
+    assert_one_line_error(result, "fd-send")
+    assert "is the input" in result.stderr.decode()
+    assert own.read_bytes() == CLIP.read_bytes()  # untouched
+    for option in ("-o", "--dump"):
+        other = ["-o", "/dev/null"] if option == "--dump" else []
+        result = run(SEND + [str(CLIP), option, str(tmp_path / "missing" / "x"), *other])
+        assert_one_line_error(result, "fd-send")
+        assert "does not exist" in result.stderr.decode()
+
+
+def test_the_session_refuses_settings_out_of_range():
+    from common.errors import InputError
+    from sender.config import LIMITS, SendConfig
+
+    for name, (lo, hi) in LIMITS.items():
+        with pytest.raises(InputError, match=name.replace("_", " ")):
+            SendConfig(**{name: lo - 1})
+        if hi is not None:
+            with pytest.raises(InputError):
+                SendConfig(**{name: float("nan") if isinstance(hi, float) else hi + 1})
+    with pytest.raises(InputError, match="layout"):
+        SendConfig(layout="nonsense")
+
+
 def test_tcp_loopback():
     server = socket.create_server(("127.0.0.1", 0))
     received = bytearray()

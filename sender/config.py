@@ -1,0 +1,76 @@
+"""What fd-send can be asked for, with its defaults and limits in one place.
+
+:class:`SendConfig` configures a :class:`sender.session.SendSession`; the
+command line reads its defaults and :data:`LIMITS` from here instead of
+writing them again, and a value out of range is one :class:`InputError` line
+whether it came from the command line or from code.
+"""
+
+from dataclasses import dataclass, fields
+
+from common.cli import describe_range, in_range
+from common.errors import InputError
+from protocol.encoder import MAX_DEAD_ZONE
+from protocol.framing import MAX_COUNT
+from protocol.header import MAX_DIVISOR
+from protocol.quantise import DEAD_ZONE, DEFAULT_QUALITY, QUALITIES
+from protocol.secure import DEFAULT_TAG_BITS, TAG_BITS
+from sender.analysis import LAYOUT_NAMES
+
+#: name -> (lowest, highest) accepted value of the numeric settings (inclusive; None: unbounded).
+LIMITS = {
+    "quality": (min(QUALITIES), max(QUALITIES)),
+    "frames_per_packet": (1, MAX_COUNT),
+    "smoothing": (0.0, 10.0),
+    "dead_zone": (0.5, MAX_DEAD_ZONE),
+    "bitrate": (1.0, 1e6),  # bit/s
+    "divisor": (1, MAX_DIVISOR),
+    "neutral": (0, None),
+}
+
+
+@dataclass(frozen=True)
+class SendConfig:
+    """How a call is coded.
+
+    quality: quantiser level (``protocol.quantise``); frames_per_packet: frames sent together
+    (fewer framing bits, more latency); layout: one of ``sender.analysis.LAYOUT_NAMES``;
+    neutral: the rest frame's index (None: chosen in the first second); smoothing: One Euro
+    strength (0: off); face_file: a personal face model (fd-enroll) to fit and render instead of
+    the generic face, carried in the stream when ``embed_face``; key: a pre-shared key
+    (``common.keys``) to seal every packet with, tags of ``tag_bits``; dead_zone: the encoder's
+    dead zone in quantiser steps (0.5: plain rounding); bitrate: bit/s to aim at instead of
+    ``quality`` (the finest level that codes the call's first second within it, chosen before the
+    header goes out); basis: code the principal components of the first second's motion
+    (``protocol.basis``) instead of each parameter; divisor: send one frame in this many, the
+    receiver interpolates the others.
+    """
+
+    quality: int = DEFAULT_QUALITY
+    frames_per_packet: int = 2
+    layout: str = "auto"
+    neutral: int | None = None
+    smoothing: float = 1.0
+    face_file: str | None = None
+    embed_face: bool = True
+    key: bytes | None = None
+    tag_bits: int = DEFAULT_TAG_BITS
+    dead_zone: float = DEAD_ZONE
+    bitrate: float | None = None
+    basis: bool = True
+    divisor: int = 1
+
+    def __post_init__(self) -> None:
+        for name, (lo, hi) in LIMITS.items():
+            value = getattr(self, name)
+            if value is not None and not in_range(value, lo, hi):
+                raise InputError(f"{name.replace('_', ' ')} must be {describe_range(lo, hi)}, not {value!r}")
+        if self.layout not in LAYOUT_NAMES:
+            raise InputError(f"unknown layout {self.layout!r} (one of {', '.join(LAYOUT_NAMES)})")
+        if self.tag_bits not in TAG_BITS:
+            raise InputError(f"tag bits must be a multiple of 8 from {TAG_BITS[0]} to {TAG_BITS[-1]}")
+
+
+def default(name: str):
+    """The default of one setting, for the command line's help and defaults."""
+    return next(f.default for f in fields(SendConfig) if f.name == name)
