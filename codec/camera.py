@@ -8,7 +8,7 @@ has pixel x to the right and pixel y down, with pixel (i, j) covering
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -37,6 +37,7 @@ class Camera:
     height: float
     near: float
     far: float
+    _axes: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         # the axes, validated once: project() runs every frame

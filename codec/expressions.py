@@ -34,7 +34,7 @@ class Tables:
     expressions: dict[str, dict[int, float]]
 
 
-def _read(path: Path) -> dict:
+def _read(path: str | Path) -> dict:
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except OSError as exc:

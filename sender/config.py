@@ -17,13 +17,14 @@ from protocol.quantise import DEAD_ZONE, DEFAULT_QUALITY, QUALITIES
 from protocol.secure import DEFAULT_TAG_BITS, TAG_BITS
 from sender.analysis import LAYOUT_NAMES
 
+BITRATE = (1.0, 1e6)  # bit/s
 #: name -> (lowest, highest) accepted value of the numeric settings (inclusive; None: unbounded).
-LIMITS = {
+LIMITS: dict[str, tuple[float, float | None]] = {
     "quality": (min(QUALITIES), max(QUALITIES)),
     "frames_per_packet": (1, MAX_COUNT),
     "smoothing": (0.0, 10.0),
     "dead_zone": (0.5, MAX_DEAD_ZONE),
-    "bitrate": (1.0, 1e6),  # bit/s
+    "bitrate": BITRATE,
     "divisor": (1, MAX_DIVISOR),
     "neutral": (0, None),
 }

@@ -105,7 +105,7 @@ class ImageSequence:
         if not re.fullmatch(r"[^%]*%0?\d*d[^%]*", pattern):
             raise InputError(f"{pattern}: a pattern takes one integer field such as %04d")
         start = next((i for i in range(2) if Path(pattern % i).exists()), None)
-        paths = []
+        paths: list[Path] = []
         while start is not None and Path(pattern % (start + len(paths))).exists():
             paths.append(Path(pattern % (start + len(paths))))
         return paths
@@ -157,6 +157,8 @@ def open_source(spec: str | None = None, camera: int | None = None, fps: float =
     """A camera by index, an image sequence (a directory or a %d pattern) or a video file."""
     if camera is not None:
         return CameraSource(camera)
+    if spec is None:
+        raise InputError("give an input file or a camera")
     if "%" in spec or Path(spec).is_dir():
         return ImageSequence(spec, fps)
     return VideoSource(spec)

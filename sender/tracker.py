@@ -44,7 +44,7 @@ class FaceTracker:
             if found is not None:
                 return found
         roi = self._detect(frame)
-        if roi is None or self._fit(frame, roi) is None:
+        if roi is None or self._fit(frame, roi) is None or self._roi is None:
             return None
         # The detector's box frames the face otherwise than the landmark crops of every later frame,
         # and landmarks from it are off by 1-2 px (up to 4 at the chin, a degree of head turn): a
