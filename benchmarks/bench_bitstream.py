@@ -23,7 +23,7 @@ from codec.deform import PAPER_PARAMS, Deformer, extended_params
 from codec.face_model import load_base_face
 from protocol.framing import DELTA, KEY, body_bits, kind_of
 from protocol.quantise import QUALITIES
-from protocol.stream import Frame, PacketEncoder, StreamDecoder, frame_bytes
+from protocol.stream import VERSION, Frame, PacketEncoder, StreamDecoder, frame_bytes
 from sender.analysis import LAYOUTS
 from sender.session import first_basis, read_dump, stream_header
 
@@ -36,7 +36,7 @@ LABELS = {**{names: name for name, names in LAYOUTS.items()}, PAPER_PARAMS: "pap
 
 
 def payload_bits(packets: list[bytes]) -> int:
-    """Entropy-coded bits of key and delta packets (sync, type byte, length and check excluded)."""
+    """Entropy-coded bits of key and delta packets (sync and type bytes and the check excluded)."""
     return sum(body_bits(p) for p in packets if kind_of(p) in (KEY, DELTA))
 
 
@@ -48,9 +48,8 @@ def vertices(deformer: Deformer, layout: tuple[str, ...], params: np.ndarray) ->
 def bench(path: Path, layout: tuple[str, ...], quality: int, dead_zone: float, args, deformer: Deformer) -> str:
     _, fps, params, found = read_dump(path, layout)
     basis = None if args.no_basis else first_basis(layout, fps, list(zip(params, found)))
-    header = replace(stream_header(layout, fps, "00" * 32, quality, basis=basis, divisor=args.divisor,
-                                   sealed=args.lengths),
-                     skip_static=not args.no_static, trained=not args.untrained)
+    header = replace(stream_header(layout, fps, "00" * 32, quality, basis=basis, divisor=args.divisor),
+                     skip_static=not args.no_static)
     enc = PacketEncoder(header, args.frames_per_packet, dead_zone=dead_zone)
     head = enc.header()
     packets, sent = [], {}
@@ -92,15 +91,11 @@ def main() -> None:
     p.add_argument("--no-static", action="store_true", help="static-frame flags off (fd-send sets them)")
     p.add_argument("--no-basis", action="store_true",
                    help="code each parameter on its own (fd-send --no-basis), not the first second's principal axes")
-    p.add_argument("--untrained", action="store_true",
-                   help="format version 3/4's entropy models (flat counts) and packet lengths, not version 6's")
-    p.add_argument("--lengths", action="store_true",
-                   help="format version 5: packets with lengths (what sealed streams carry), not self-delimiting ones")
     args = p.parse_args()
     deformer = Deformer(load_base_face())
     print(f"frames per packet: {args.frames_per_packet}, divisor {args.divisor}, static flags "
           f"{'off' if args.no_static else 'on'}, basis {'off' if args.no_basis else 'on'}, "
-          f"format version {3 if args.untrained else 5 if args.lengths else 6}; "
+          f"format version {VERSION}; "
           f"vertex error in px for a face {FACE_PX:.0f} px tall")
     print("| clip | layout | quality | dead zone | payload bits/frame | framing bits/frame | total bits/frame | "
           "bit/s | max vertex err px | rms vertex err px | max angle err deg | encode fps | decode fps |")

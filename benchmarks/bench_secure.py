@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from protocol.secure import SecureOpener, SecureSealer
-from protocol.stream import Header, PacketEncoder, frame_bytes, steps_for
-from sender.session import read_dump
+from protocol.stream import PacketEncoder, frame_bytes
+from sender.session import first_basis, read_dump, stream_header
 
 ROOT = Path(__file__).resolve().parents[1]
 KEY = os.urandom(32)
@@ -37,8 +37,8 @@ def clip_params(dump: str | None) -> tuple[np.ndarray, np.ndarray, tuple[str, ..
 
 
 def frame_packets(params, found, names, fps, fpp) -> list[bytes]:
-    header = Header(fps, names, steps_for(names), "00" * 32, key_interval=max(1, round(fps)),
-                    self_delimiting=False)  # sealed streams carry version 5
+    """The frame packets fd-send sends for the clip (its header: coding basis, static flags)."""
+    header = stream_header(names, fps, "00" * 32, basis=first_basis(names, fps, list(zip(params, found))))
     enc = PacketEncoder(header, fpp)
     return [p for x, f in zip(params, found) for p in enc.frame(x, f)] + enc.end()
 

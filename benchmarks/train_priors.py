@@ -1,5 +1,5 @@
-"""Trains the starting counts of format versions 5 and 6 (protocol/priors.json) on fd-send parameter dumps, and
-measures them leave-one-clip-out.
+"""Trains the starting counts of the stream's entropy models (protocol/priors.json) on fd-send parameter dumps,
+and measures them leave-one-clip-out.
 
 Each dump is coded as fd-send codes it (its layout, the coding basis of its first
 second, a keyframe a second, static flags, dead zone 1) at every quality level,
@@ -12,16 +12,15 @@ Dumps: ``fd-send CLIP -o /dev/null --dump CLIP.LAYOUT.npz --params LAYOUT`` for 
 and LAYOUT in paper, mouth, full (fd-send's other options at their defaults).
 
 ``--check`` codes each dump three ways (2 frames per packet) and prints a
-Markdown table of stream bits per frame: version 4's models (flat counts, no axis groups), version 6
-with the table trained on every dump, and with one trained on the other clips'
-dumps only (what a speaker outside the training set gets).
+Markdown table of stream bits per frame: models that start from nothing, the
+table trained on every dump, and one trained on the other clips' dumps only
+(what a speaker outside the training set gets).
 """
 
 import argparse
 import hashlib
 import json
 from collections import defaultdict
-from dataclasses import replace
 from pathlib import Path
 from unittest import mock
 
@@ -51,12 +50,10 @@ class CountingBit(AdaptiveBit):
 
 def code(path: Path, quality: int, models) -> float:
     """Stream bits per frame of ``path`` coded as fd-send codes it, with ``models`` in place of
-    :func:`protocol.priors.models_for` (None: a version 3 or 4 stream, flat models)."""
+    :func:`protocol.priors.models_for`."""
     names, fps, params, found = read_dump(path)
     header = stream_header(names, fps, "00" * 32, quality, basis=first_basis(names, fps, list(zip(params, found))))
-    if models is None:
-        header = replace(header, trained=False)
-    with mock.patch.object(encoder_module, "models_for", models or models_for):
+    with mock.patch.object(encoder_module, "models_for", models):
         enc = PacketEncoder(header, 2)
         packets = [p for x, f in zip(params, found) for p in enc.frame(x, f)] + enc.end()
     return 8 * len(frame_bytes(packets)) / len(params)
@@ -85,15 +82,15 @@ def train(paths: list[Path]) -> dict[str, dict[str, list[int]]]:
 
 def check(paths: list[Path]) -> None:
     everyone = train(paths)
-    print("| clip | layout | quality | version 4 | version 6, all clips | version 6, other clips |")
+    print("| clip | layout | quality | no starting counts | trained on all clips | trained on other clips |")
     print("|---|---|---|---|---|---|")
     for path in paths:
         clip = path.name.split(".")[0]
         others = train([p for p in paths if p.name.split(".")[0] != clip])
         for q in QUALITIES:
-            flat = code(path, q, None)
+            flat = code(path, q, lambda header: lambda key: AdaptiveBit())
             own = code(path, q, lambda header: models_for(header, everyone))
-            held_out = code(path, q, lambda header: models_for(header, others))
+            held_out = code(path, q, lambda header, others=others: models_for(header, others))
             print(f"| {clip} | {path.name.split('.')[1]} | {q} | {flat:.1f} | {own:.1f} | {held_out:.1f} |", flush=True)
 
 

@@ -3,16 +3,11 @@
 Why not a word-based library coder (constriction emits 32-bit words): a delta
 packet carries 20-100 bits, so rounding each packet up to whole words would cost
 more than the data. Python integers have no width, so this coder keeps the
-interval exactly (no carry handling). It ends one of two ways:
-
-- :meth:`Encoder.finish`: the shortest bit string inside the final interval,
-  trailing zero bytes dropped; the decoder reads bytes past the end as zeros, so
-  it must be told where the code ends (a length field).
-- :meth:`Encoder.end`: the fewest bytes such that whatever follows them the
-  value stays inside the final interval. A decoder holding the same interval
-  knows that length itself (:meth:`Decoder.end`), so the code needs no length
-  field, and the bytes that follow (the next packet) cannot change what it
-  decodes.
+interval exactly (no carry handling). It ends itself (:meth:`Encoder.end`): the
+fewest bytes such that whatever follows them the value stays inside the final
+interval. A decoder holding the same interval knows that length itself
+(:meth:`Decoder.end`), so the code needs no length field, and the bytes that
+follow (the next packet) cannot change what it decodes.
 
 Everything is integer arithmetic: both ends compute identical probabilities on
 any machine.
@@ -97,29 +92,16 @@ class Encoder:
         """The self-delimiting end: see the module docstring."""
         return _self_delimiting_end(self._low, self._low + self._range, self._shift)
 
-    def finish(self) -> bytes:
-        """The shortest byte string whose value lies inside the final interval."""
-        low, high = self._low, self._low + self._range
-        for drop in range(self._shift, -1, -1):  # most trailing zero bits first
-            value = -(-low >> drop) << drop
-            if value < high:
-                break
-        nbytes = (self._shift - drop + 7) // 8
-        data = (value >> (self._shift - 8 * nbytes) if 8 * nbytes <= self._shift
-                else value << (8 * nbytes - self._shift)).to_bytes(nbytes, "big")
-        return data.rstrip(b"\0")
-
 
 class Decoder:
     """Reads the bits of :class:`Encoder` (the same ``first_byte_below``).
 
-    Bytes past the end of ``data`` read as zeros, unless ``open_end``: then
-    ``data`` may be followed by bytes not yet known, and a bit they would decide
+    ``data`` may be followed by bytes not yet known: a bit they would decide
     raises :class:`Incomplete`. Bytes are read only as far as the bits need.
     """
 
-    def __init__(self, data: bytes, first_byte_below: int = 256, open_end: bool = False) -> None:
-        self._data, self._open = data, open_end
+    def __init__(self, data: bytes, first_byte_below: int = 256) -> None:
+        self._data = data
         self._value = self._n = 0  # the first _n bytes of data, read so far
         self._low, self._range, self._shift = 0, first_byte_below << 24, 32
         self.trace = 1
@@ -141,11 +123,8 @@ class Decoder:
                 more = min(len(self._data), self._n + 4)
                 self._value = self._value << 8 * (more - self._n) | int.from_bytes(self._data[self._n:more], "big")
                 self._n = more
-            elif self._open:
-                raise Incomplete
             else:
-                bit = 0  # zeros past the end: the value is exactly value * 2**-8n, below the threshold
-                break
+                raise Incomplete
         if bit:
             self._low += split
             self._range -= split

@@ -5,6 +5,12 @@ fails its check, cannot be decoded, or does not follow the frames held is
 dropped with a :class:`Damage` event, frames are concealed until the next
 keyframe, and :attr:`stats` counts it all. Only a stream that never was one (no
 header, another version) raises :class:`BitstreamError`.
+
+Nothing from the wire sizes a loop or an allocation unchecked: a keyframe or
+an end mark may claim frames beyond the next one expected only as far as the
+bytes received since the last accepted frames packet could have carried
+(:meth:`PacketDecoder.allowance`), so the frames a decoder emits, concealed ones
+included, are paid for by received bytes (docs/security.md, "Bounds").
 """
 
 import numpy as np
@@ -15,15 +21,15 @@ from protocol.entropy import GroupState
 from protocol.events import Damage, End, Frame, Model, Stats
 from protocol.framing import (
     DELTA,
-    END,
     HEADER,
     KEY,
     MAX_BODY,
+    MAX_COUNT,
+    MAX_FRAME,
     MODEL,
     SYNC,
     frame_count,
     inner_check,
-    is_delta,
     packet_ends,
     packet_size,
     packet_type,
@@ -34,15 +40,13 @@ from protocol.header import Header, parse_header
 from protocol.priors import models_for
 
 MAX_SEEK = 1 << 16  # bytes searched for a header before the input is declared foreign
-_MAX_FRAME = 1 << 40
 
 
 class PacketDecoder:
     """Whole packets in, events out: the decoder for datagram transports.
 
-    A datagram holds one packet: in versions 2-5 without a sync byte; in
-    version 6 as on a byte stream (:meth:`accept_wire`), a sync byte before
-    each packet but a delta.
+    A datagram holds one packet as on a byte stream (:meth:`accept_wire`): a
+    sync byte before each packet but a delta.
     """
 
     def __init__(self) -> None:
@@ -55,47 +59,40 @@ class PacketDecoder:
         self._last: tuple[int, np.ndarray, bool] | None = None  # coded index, params, face of the last decoded
         self._model = bytearray()
         self._previous = b""
+        #: Bytes of input (junk and damage included) before the packet being read: its callers set it.
+        self.position = 0
+        self._paid = 0  # where the last accepted frames packet ended
+
+    def unpaid(self, size: int) -> int:
+        """Bytes received since the last accepted frames packet, up to the end of the packet of
+        ``size`` bytes being read."""
+        return self.position + size - self._paid
+
+    def allowance(self, size: int) -> int:
+        """Coded frames a keyframe or end mark of ``size`` bytes may lie beyond the next one expected:
+        :data:`~protocol.framing.MAX_COUNT` per byte :meth:`unpaid` (the frames between were in
+        packets of at most that many frames and at least a byte)."""
+        return MAX_COUNT * self.unpaid(size)
 
     def receive(self, data: bytes) -> list:
         """Events of one datagram; a bad one is dropped and reported."""
-        data = bytes(data)
-        if self.header is not None and self.header.self_delimiting:
-            got = self.accept_wire(data, 0, final=True) if data else None
-            events = got[0] if got is not None and got[1] == len(data) else None
-        else:  # before the header, a version 6 stream's header arrives after its sync byte
-            events = self.accept(data[1:] if data[:1] == bytes([SYNC]) else data)
-        return self.damage("packet fails its check or cannot be decoded") if events is None else events
-
-    def accept(self, data: bytes) -> list | None:
-        """Events of one packet, or None if it is not a valid packet here (nothing changed)."""
-        data = bytes(data)
-        try:
-            packet = parse(data, self._next)
-        except BitstreamError:
-            if data == self._previous:
-                self.stats.duplicates += 1
-                return []
-            return None
-        if self.header is None and packet.kind != HEADER:
-            return None
-        handler = {HEADER: self._on_header, MODEL: self._on_model, KEY: self._on_key,
-                   DELTA: self._on_delta, END: self._on_end}[packet.kind]
-        try:
-            events = handler(packet)
-        except BitstreamError:
-            if packet.kind == HEADER:
-                raise
-            self._group = None
-            return None
-        if events is not None:
-            self.stats.packets += 1
-            self._previous = data
+        events = self.packet(data)
+        self.position += len(data)
         return events
 
+    def packet(self, data: bytes) -> list:
+        """Events of one whole packet (as on a byte stream) that starts at :attr:`position`; a bad
+        one is dropped and reported."""
+        data = bytes(data)
+        got = self.accept_wire(data, 0, final=True) if data else None
+        if got is not None and got[0] is not None and got[1] == len(data):
+            return got[0]
+        return self.damage("packet fails its check or cannot be decoded")
+
     def accept_wire(self, buf: bytes, pos: int, final: bool) -> tuple[list | None, int] | None:
-        """A version 6 packet as on a byte stream at ``buf[pos]``: (events, bytes used), (None, 0)
-        if it is not a valid packet here, None if it may be one but more bytes are needed
-        (never when ``final``: ``buf`` then ends where the stream or datagram does)."""
+        """The packet at ``buf[pos]``: (events, bytes used), (None, 0) if it is not a valid packet
+        here (nothing changed), None if it may be one but more bytes are needed (never when
+        ``final``: ``buf`` then ends where the stream or datagram does)."""
         if buf[pos] != SYNC:
             return self._self_delimited(buf, pos, final, DELTA)
         if pos + 1 >= len(buf):
@@ -109,13 +106,42 @@ class PacketDecoder:
             return None, 0
         if size is None or pos + 1 + size > len(buf):
             return (None, 0) if final else None
-        events = self.accept(buf[pos + 1:pos + 1 + size])
+        events = self._framed(bytes(buf[pos + 1:pos + 1 + size]))
         return (None, 0) if events is None else (events, 1 + size)
 
-    def _self_delimited(self, buf: bytes, pos: int, final: bool, kind: int) -> tuple[list | None, int] | None:
-        """A version 6 keyframe packet (from its type byte) or delta packet at ``buf[pos]``."""
+    def _framed(self, data: bytes) -> list | None:
+        """Events of a header, model or end packet (from its type byte), None if not valid here."""
         try:
-            got = self._key6(buf, pos) if kind == KEY else self._delta6(buf, pos)
+            packet = parse(data)
+        except BitstreamError:
+            if data == self._previous:
+                self.stats.duplicates += 1
+                return []
+            return None
+        if self.header is None and packet.kind != HEADER:
+            return None
+        try:
+            if packet.kind == HEADER:
+                events = self._on_header(packet.body)
+            elif packet.kind == MODEL:
+                events = self._on_model(packet.body)
+            else:
+                events = self._on_end(packet.body, 1 + len(data))
+        except BitstreamError:
+            if packet.kind == HEADER:
+                raise
+            return None
+        if events is not None:
+            self.stats.packets += 1
+            self._previous = data
+        return events
+
+    def _self_delimited(self, buf: bytes, pos: int, final: bool, kind: int) -> tuple[list | None, int] | None:
+        """A keyframe packet (from its type byte) or delta packet at ``buf[pos]``."""
+        if self.header is None:
+            return None, 0
+        try:
+            got = self._key(buf, pos) if kind == KEY else self._delta(buf, pos)
         except Incomplete:
             return (None, 0) if final or len(buf) - pos > MAX_BODY + 8 else None
         except BitstreamError:
@@ -131,23 +157,34 @@ class PacketDecoder:
         self._previous = data
         return events, len(data)
 
-    def _key6(self, buf: bytes, pos: int) -> tuple[list, bytes] | None:
+    def _key(self, buf: bytes, pos: int) -> tuple[list, bytes] | None:
         count = frame_count(buf[pos])
-        got = read_varint(buf, pos + 1, _MAX_FRAME)
+        got = read_varint(buf, pos + 1, MAX_FRAME)
         if got is None:
             raise Incomplete
         coded, start = got
-        dec = Decoder(bytes(buf[start:start + MAX_BODY]), SYNC, open_end=True)
-        group, decoded = self._key_frames(dec, count)
+        dec = Decoder(bytes(buf[start:start + MAX_BODY]), SYNC)
+        group = GroupState(len(self.header.names), self.header.skip_static, models_for(self.header))
+        decoded = [group.decode_key(dec)] + [group.decode_delta(dec) for _ in range(count - 1)]
         data = self._checked(dec, KEY, bytes(buf[pos:start]), buf, pos, start)
         if data is None:
             return None
-        return self._key_events(coded, group, decoded), data
+        if coded < self._next or self.ended:
+            self.stats.duplicates += 1
+            return [], data
+        size = len(data) + 1  # and the sync byte
+        if coded - self._next > self.allowance(size):
+            return self.damage(f"keyframe {coded} is {coded - self._next} frames ahead, more than the "
+                               f"{self.unpaid(size)} bytes since the last frames allow", always=True), data
+        events = self.damage("packets lost before a keyframe") if coded > self._next else []
+        group.end_packet()
+        self._group, self._paid = group, self.position + size
+        return events + self._emit(coded, decoded), data
 
-    def _delta6(self, buf: bytes, pos: int) -> tuple[list, bytes] | None:
+    def _delta(self, buf: bytes, pos: int) -> tuple[list, bytes] | None:
         if self._group is None or self.ended:
             return None
-        group, dec = self._group, Decoder(bytes(buf[pos:pos + MAX_BODY]), SYNC, open_end=True)
+        group, dec = self._group, Decoder(bytes(buf[pos:pos + MAX_BODY]), SYNC)
         saved, dec.journal = group.state(), []  # the group changes only if the packet passes its check
         try:
             decoded, interval = [], self.header.key_interval
@@ -165,6 +202,7 @@ class PacketDecoder:
             group.restore(saved, dec.journal)
             return None
         group.end_packet()
+        self._paid = self.position + len(data)
         return self._emit(self._next, decoded), data
 
     @staticmethod
@@ -189,8 +227,8 @@ class PacketDecoder:
         self.stats.reasons.append(reason)
         return [Damage(self._out, reason)]
 
-    def _on_header(self, packet) -> list | None:
-        header = parse_header(packet.body)
+    def _on_header(self, body: bytes) -> list | None:
+        header = parse_header(body)
         if self.header is not None:
             if header != self.header:
                 return None
@@ -199,12 +237,12 @@ class PacketDecoder:
         self.header = header
         return [header]
 
-    def _on_model(self, packet) -> list | None:
-        got = read_varint(packet.body, 0, self.header.model_size)
+    def _on_model(self, body: bytes) -> list | None:
+        got = read_varint(body, 0, self.header.model_size)
         if got is None:
             return None
         offset, pos = got
-        chunk = packet.body[pos:]
+        chunk = body[pos:]
         if offset < len(self._model) or not chunk:
             self.stats.duplicates += 1
             return []
@@ -213,44 +251,24 @@ class PacketDecoder:
         self._model += chunk
         return [Model(bytes(self._model))] if len(self._model) == self.header.model_size else []
 
-    def _on_key(self, packet) -> list | None:
-        got = read_varint(packet.body, 0, _MAX_FRAME)
-        if got is None:
-            return None
-        coded, pos = got
-        group, decoded = self._key_frames(Decoder(packet.body[pos:]), packet.count)
-        return self._key_events(coded, group, decoded)
-
-    def _key_frames(self, dec: Decoder, count: int) -> tuple[GroupState, list]:
-        """A keyframe packet's fresh coding state and its ``count`` frames."""
-        group = GroupState(len(self.header.names), self.header.skip_static, models_for(self.header))
-        return group, [group.decode_key(dec)] + [group.decode_delta(dec) for _ in range(count - 1)]
-
-    def _key_events(self, coded: int, group: GroupState, decoded: list) -> list:
-        if coded < self._next or self.ended:
-            self.stats.duplicates += 1
-            return []
-        events = self.damage("packets lost before a keyframe") if coded > self._next else []
-        group.end_packet()
-        self._group = group
-        return events + self._emit(coded, decoded)
-
-    def _on_delta(self, packet) -> list | None:
-        if self._group is None or self.ended:
-            return None
-        dec = Decoder(packet.body)
-        decoded = [self._group.decode_delta(dec) for _ in range(packet.count)]
-        return self._emit(self._next, decoded)
-
-    def _on_end(self, packet) -> list | None:
-        got = read_varint(packet.body, 0, _MAX_FRAME)
-        if got is None or got[1] != len(packet.body):
+    def _on_end(self, body: bytes, size: int) -> list | None:
+        divisor = self.header.divisor
+        try:
+            got = read_varint(body, 0, MAX_FRAME * divisor)
+        except BitstreamError:
+            return self.damage("end mark claims more frames than a stream can hold", always=True)
+        if got is None or got[1] != len(body):
             return None
         if self.ended:
             self.stats.duplicates += 1
             return []
         total = got[0]
-        complete = self._group is not None and self._next == -(-total // self.header.divisor)
+        coded = -(-total // divisor)
+        if total < self._out or coded - self._next > self.allowance(size):
+            return self.damage(f"end mark claims {total} frames: {self._out} were output, and the "
+                               f"{self.unpaid(size)} bytes since the last frames allow no more than "
+                               f"{(self._next + self.allowance(size)) * divisor}", always=True)
+        complete = self._group is not None and self._next == coded
         events = self._fill(total, None, complete)
         self.ended = True
         return events + [End(total)]
@@ -319,12 +337,11 @@ class ByteStreamDecoder(WrapsPacketDecoder):
     def __init__(self) -> None:
         self._core = PacketDecoder()
         self._buf = bytearray()
-        self._seen = 0
+        self._base = 0  # bytes fed before the buffer's first
 
     def feed(self, data: bytes) -> list:
         """Events completed by ``data``."""
         self._buf += data
-        self._seen += len(data)
         return self._scan(final=False)
 
     def close(self) -> list:
@@ -348,6 +365,7 @@ class ByteStreamDecoder(WrapsPacketDecoder):
                 pos = len(buf) if pos < 0 else pos
                 events += self._skip(pos - start, "bytes between packets")
                 continue
+            self._core.position = self._base + pos
             step = self._packet_at(pos, final)
             if step is None:
                 break  # wait for the rest: a packet is at most MAX_BODY plus a few bytes
@@ -355,6 +373,7 @@ class ByteStreamDecoder(WrapsPacketDecoder):
             events += got
             pos += used
         del buf[:pos]
+        self._base += pos
         return events
 
     def _starts_packet(self, pos: int) -> bool:
@@ -380,36 +399,21 @@ class StreamDecoder(ByteStreamDecoder):
         self._synced = False  # the buffer starts where the last accepted packet ended
 
     def _starts_packet(self, pos: int) -> bool:
-        header = self._core.header
-        return self._buf[pos] == SYNC or (self._synced and (
-            is_delta(self._buf[pos]) or header is not None and header.self_delimiting))
+        return self._buf[pos] == SYNC or (self._synced and self._core.header is not None)
 
     def _no_stream(self) -> str:
-        return "empty input: no fd stream" if not self._seen else "input is not an fd stream (no valid header)"
+        if not self._base + len(self._buf):
+            return "empty input: no fd stream"
+        return "input is not an fd stream (no valid header)"
 
     def _packet_at(self, pos: int, final: bool) -> tuple[list, int] | None:
-        buf = self._buf
-        header = self._core.header
-        if header is not None and header.self_delimiting:
-            got = self._core.accept_wire(buf, pos, final)
-            if got is None:
-                return None
-            if got[0] is None:
-                return self._skip(1, "packet fails its check or cannot be decoded"), 1
-            self._synced = True
-            return got
-        start = pos + (buf[pos] == SYNC)
-        try:
-            size = packet_size(buf, start)
-        except BitstreamError:
-            size = 0
-        if not final and (size is None or start + size > len(buf)):
-            return None
-        got = self._core.accept(buf[start:start + size]) if size else None
+        got = self._core.accept_wire(self._buf, pos, final)
         if got is None:
+            return None
+        if got[0] is None:
             return self._skip(1, "packet fails its check or cannot be decoded"), 1
         self._synced = True
-        return got, start - pos + size
+        return got
 
     def _skip(self, n: int, reason: str) -> list:
         self._synced = False

@@ -19,12 +19,12 @@ from protocol.framing import (
     KEY,
     MAX_BODY,
     MAX_COUNT,
+    MAX_FRAME,
     MODEL,
     SYNC,
     Delta,
     build,
     inner_check,
-    kind_of,
     packet_ends,
     type_byte,
     varint,
@@ -70,14 +70,17 @@ class PacketEncoder:
         """The header packet, then the face model in chunks."""
         chunks = [build(MODEL, varint(i) + self._model[i:i + MODEL_CHUNK])
                   for i in range(0, len(self._model), MODEL_CHUNK)]
-        return [self._synced(build(HEADER, encode_header(self._h)))] + [self._synced(c) for c in chunks]
+        return [build(HEADER, encode_header(self._h))] + chunks
 
     def frame(self, params: np.ndarray, face_seen: bool) -> list[bytes]:
         """(k,) float params in the header's layout; returns the packets this frame completes."""
         params = np.asarray(params, dtype=np.float64)
         if params.shape != self._h.steps.shape or not np.all(np.isfinite(params)):
             raise BitstreamError(f"expected {self._h.steps.size} finite parameters, got {params.shape}")
-        index, self._frames = self._frames, self._frames + 1
+        index = self._frames
+        if index // self._h.divisor >= MAX_FRAME:
+            raise BitstreamError("stream too long: start a new one")
+        self._frames += 1
         if index % self._h.divisor:
             return []
         coded = index // self._h.divisor
@@ -93,7 +96,7 @@ class PacketEncoder:
         else:
             if self._coder is None:
                 self._start(DELTA, coded)
-            elif self._h.self_delimiting and self._kind == DELTA:
+            elif self._kind == DELTA:
                 self._group.encode_more(self._coder, True)
             self._group.encode_delta(self._coder, values, face)
         self._count += 1
@@ -105,28 +108,19 @@ class PacketEncoder:
     def end(self) -> list[bytes]:
         """The last pending packet and the end mark."""
         pending = [self._flush(stop_flag=True)] if self._coder is not None else []
-        return pending + [self._synced(build(END, varint(self._frames)))]
-
-    def _synced(self, packet: bytes) -> bytes:
-        """Version 6 packets are as on a byte stream, in datagrams too: a sync byte before each but a delta."""
-        return bytes([SYNC]) + packet if self._h.self_delimiting else packet
+        return pending + [build(END, varint(self._frames))]
 
     def _start(self, kind: int, coded: int) -> None:
-        self._coder = Encoder(SYNC if self._h.self_delimiting else 256)
+        self._coder = Encoder(SYNC)
         self._kind, self._first, self._count = kind, coded, 0
 
     def _flush(self, stop_flag: bool) -> bytes:
-        """The pending packet; ``stop_flag``: the decoder cannot tell that it ends here (version 6
-        then codes so in a delta packet)."""
+        """The pending packet; ``stop_flag``: the decoder cannot tell that it ends here (a delta
+        packet then codes so)."""
         coder, group, self._coder = self._coder, self._group, None
-        if self._h.self_delimiting and self._kind == DELTA and stop_flag:
+        if self._kind == DELTA and stop_flag:
             group.encode_more(coder, False)
         group.end_packet()
-        if not self._h.self_delimiting:
-            body = coder.finish()
-            if self._kind == KEY:
-                body = varint(self._first) + body
-            return build(self._kind, body, self._count, self._first)
         if self._kind == DELTA:
             head, covered = b"", self._first.to_bytes(4, "big")
         else:
@@ -137,7 +131,7 @@ class PacketEncoder:
         code = coder.end()
         if len(code) > MAX_BODY:
             raise BitstreamError(f"packet too large ({self._count} frames, {len(code)} bytes)")
-        return self._synced(head + code) if self._kind == KEY else Delta(code)
+        return bytes([SYNC]) + head + code if self._kind == KEY else Delta(code)
 
 
 class StreamEncoder:
@@ -159,9 +153,8 @@ class StreamEncoder:
 
 
 def frame_bytes(packets: list[bytes], sealed: bool = False) -> bytes:
-    """Packets as they go on a byte stream: a sync byte before each but a delta. Version 6 packets
-    are so already (they start with the sync byte, or are a :class:`~protocol.framing.Delta`).
-    ``sealed`` packets (protocol/secure.py) are opaque, so each has its sync byte."""
+    """Packets as they go on a byte stream: as the encoder returns them (a sync byte before each
+    but a delta), end to end. ``sealed`` packets (protocol/secure.py) each get a sync byte."""
     if sealed:
         return b"".join(bytes([SYNC]) + p for p in packets)
-    return b"".join(p if p[0] == SYNC or kind_of(p) == DELTA else bytes([SYNC]) + p for p in packets)
+    return b"".join(packets)

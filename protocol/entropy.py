@@ -10,14 +10,14 @@ speech costs what it must. All models live in one :class:`GroupState` that is
 reset at every keyframe: a lost packet can never corrupt decoding past the next
 keyframe.
 
-Version 5 adds what a second of data cannot learn on its own: the zero flag and
+What a second of data cannot learn on its own is built in: the zero flag and
 the prefix also depend on the value's axis (the coding basis puts the largest
 motion first), the first bit below a magnitude's leading one has a model, and
 every model starts from trained counts (``protocol/priors.py``) instead of
-from nothing, so the reset at each keyframe costs little. Version 6 codes, after
-each frame of a delta packet, whether another follows: the packet then ends
-itself, and the flag costs almost nothing because a packet usually holds as
-many frames as the one before.
+from nothing, so the reset at each keyframe costs little. After each frame of a
+delta packet comes whether another follows: the packet then ends itself, and
+the flag costs almost nothing because a packet usually holds as many frames as
+the one before.
 """
 
 from collections.abc import Callable
@@ -34,10 +34,6 @@ _AXIS_GROUPS = (0, 1, 2, 3, 4, 4, 4, 4, 5)  # by axis, the last for axes 8 and u
 NewBit = Callable[[tuple], AdaptiveBit]
 
 
-def _flat(key: tuple) -> AdaptiveBit:
-    return AdaptiveBit()
-
-
 def _activity_class(last: int, neighbour: int) -> int:
     a = 2 * abs(last) + abs(neighbour)
     return 0 if a == 0 else 1 if a <= 2 else 2 if a <= 8 else 3
@@ -47,25 +43,23 @@ class _IntModels:
     """Models of one kind of value ("key": keyframe values, "delta": residuals).
 
     Zero flag and prefix per axis group and activity class, sign per previous
-    sign, the first mantissa bit per exponent. ``new_bit`` None: version 2-4's
-    models (flat, one axis group, mantissa bits at 1/2).
+    sign, the first mantissa bit per exponent.
     """
 
-    def __init__(self, kind: str, new_bit: NewBit | None) -> None:
-        self._axis_groups = None if new_bit is None else _AXIS_GROUPS
-        groups = 1 if new_bit is None else max(_AXIS_GROUPS) + 1
-        make = _flat if new_bit is None else new_bit
-        self.zero = [[make((kind, "zero", g, c)) for c in range(_CLASSES)] for g in range(groups)]
-        self.sign = [make((kind, "sign", s)) for s in range(3)]
-        self.prefix = [[[make((kind, "prefix", g, c, i)) for i in range(_PREFIX_MODELS)]
+    def __init__(self, kind: str, new_bit: NewBit) -> None:
+        groups = max(_AXIS_GROUPS) + 1
+        self.zero = [[new_bit((kind, "zero", g, c)) for c in range(_CLASSES)] for g in range(groups)]
+        self.sign = [new_bit((kind, "sign", s)) for s in range(3)]
+        self.prefix = [[[new_bit((kind, "prefix", g, c, i)) for i in range(_PREFIX_MODELS)]
                         for c in range(_CLASSES)] for g in range(groups)]
-        self.mantissa = None if new_bit is None else [make((kind, "mantissa", e)) for e in range(_MANTISSA_MODELS)]
+        self.mantissa = [new_bit((kind, "mantissa", e)) for e in range(_MANTISSA_MODELS)]
 
-    def group(self, axis: int) -> int:
-        return 0 if self._axis_groups is None else self._axis_groups[min(axis, len(self._axis_groups) - 1)]
+    @staticmethod
+    def group(axis: int) -> int:
+        return _AXIS_GROUPS[min(axis, len(_AXIS_GROUPS) - 1)]
 
-    def first_mantissa(self, exp: int) -> AdaptiveBit | None:
-        return None if self.mantissa is None else self.mantissa[min(exp, _MANTISSA_MODELS) - 1]
+    def first_mantissa(self, exp: int) -> AdaptiveBit:
+        return self.mantissa[min(exp, _MANTISSA_MODELS) - 1]
 
 
 def _encode_int(enc: Encoder, value: int, m: _IntModels, axis: int, cls: int, last: int) -> None:
@@ -106,10 +100,10 @@ class GroupState:
     """What both ends hold between keyframes: last values, last residuals and all models.
 
     ``k`` parameters; ``static`` adds a per-frame "same as before" flag;
-    ``new_bit`` makes version 5's models (None: version 2-4's).
+    ``new_bit`` makes each model (``protocol.priors.models_for``: from trained counts).
     """
 
-    def __init__(self, k: int, static: bool, new_bit: NewBit | None = None) -> None:
+    def __init__(self, k: int, static: bool, new_bit: NewBit) -> None:
         self.k, self.static = k, static
         self.active = 0  # frames of the current packet that are not static
         self._last_active = 0  # the same for the packet before
@@ -118,10 +112,9 @@ class GroupState:
         self._residuals = [0] * k
         self._delta = _IntModels("delta", new_bit)  # shared across parameters: one second is too short to learn each
         self._absolute = _IntModels("key", new_bit)  # keyframe values: one keyframe per group
-        make = _flat if new_bit is None else new_bit
-        self._face = [make(("frame", "face", f)) for f in range(2)]
-        self._static = make(("frame", "static"))
-        self._more = [make(("frame", "more", c)) for c in range(2)]  # by: as many frames as the last packet yet
+        self._face = [new_bit(("frame", "face", f)) for f in range(2)]
+        self._static = new_bit(("frame", "static"))
+        self._more = [new_bit(("frame", "more", c)) for c in range(2)]  # by: as many frames as the last packet yet
 
     def encode_key(self, enc: Encoder, values: list[int], face: bool) -> None:
         enc.bit(face, self._face[1])
@@ -172,7 +165,7 @@ class GroupState:
         return list(self.values), self.face
 
     def encode_more(self, enc: Encoder, more: bool) -> None:
-        """Whether another frame follows in this delta packet (version 6)."""
+        """Whether another frame follows in this delta packet."""
         enc.bit(more, self._more[self.active >= self._last_active])
 
     def decode_more(self, dec: Decoder) -> bool:

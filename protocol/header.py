@@ -15,20 +15,17 @@ from protocol.framing import read_varint, varint
 from protocol.quantise import dequantise
 
 MAGIC = b"FD"
-VERSION = 6
-#: Version 2 differs only in framing (every packet long, and after a sync byte); version 4 adds a
-#: coding basis to version 3's header; version 5 adds trained entropy models (protocol/entropy.py)
-#: and carries a basis or not; version 6 is version 5 with keyframe and delta packets whose code
-#: ends itself (no length field, the check inside the code). Versions 5, and 3 and 4, are still
-#: written for ``Header(self_delimiting=False)`` and ``Header(trained=False)``.
-READABLE = (2, 3, 4, 5, 6)
-TRAINED_VERSION = 5
-BASIS_VERSION = 4
+#: The one version written and read; a decoder refuses any other (docs/bitstream.md, "Evolution").
+VERSION = 7
 MAX_NAMES = 64
 MAX_NAME = 32
 MAX_MODEL = 16 << 20  # bytes of pre-shared face model carried in-band
 MAX_KEY_INTERVAL = 255
 MAX_DIVISOR = 16
+MAX_STEP = 1e6  # a quantiser step: any index times any step stays finite (|index| < 2**34)
+MAX_SIZE = 16384  # pixels of the source's width or height
+#: Deformation rules a sender may assume (codec/deform.py), one byte on the wire: the index here.
+RULES = ("refined", "paper")
 _FLAG_F3_WITH_JAW, _FLAG_STATIC, _FLAG_BASIS = 1, 2, 4
 
 
@@ -43,13 +40,10 @@ class Header:
     one frame in ``divisor`` is sent, the decoder interpolates the others;
     skip_static: frames equal to the previous cost a flag only; model_size:
     bytes of face model carried after the header (0: referenced by face_id only);
+    width, height: the source's frame size in pixels (0: not given), the receiver's default
+    output size; rule: the deformation rule the sender assumed, one of :data:`RULES`;
     basis: (k, k) int8 coding axes (``protocol.basis``) or None: the coded values are then
-    coordinates along the axes, in steps, instead of one value per parameter;
-    trained: the entropy models start from trained counts (version 5), else from
-    nothing (versions 2-4, what older decoders read); self_delimiting: keyframe
-    and delta packets end themselves (version 6; needs ``trained``, and is
-    False whenever ``trained`` is). Sealed byte streams need packet lengths, so
-    they use version 5.
+    coordinates along the axes, in steps, instead of one value per parameter.
     """
 
     fps: float
@@ -63,36 +57,32 @@ class Header:
     skip_static: bool = False
     model_size: int = 0
     basis: np.ndarray | None = None
-    trained: bool = True
-    self_delimiting: bool = True
+    width: int = 0
+    height: int = 0
+    rule: str = RULES[0]
 
     def __post_init__(self) -> None:
         names, steps = self.names, np.asarray(self.steps, dtype=np.float64)
         if not (1 <= len(names) <= MAX_NAMES and all(1 <= len(n) <= MAX_NAME and n.isascii() for n in names)):
             raise BitstreamError(f"bad parameter layout: {names!r}")
-        if steps.shape != (len(names),) or not np.all(np.isfinite(steps) & (steps > 0)):
-            raise BitstreamError("quantiser steps must be one positive number per parameter")
+        if steps.shape != (len(names),) or not np.all((steps > 0) & (steps <= MAX_STEP)):
+            raise BitstreamError(f"quantiser steps must be one number in (0, {MAX_STEP:g}] per parameter")
         if not (0 < self.fps <= 1000 and 1 <= self.key_interval <= MAX_KEY_INTERVAL
                 and 1 <= self.divisor <= MAX_DIVISOR and 0 <= self.model_size <= MAX_MODEL
-                and 0 <= self.quality <= 255):
+                and 0 <= self.quality <= 255 and 0 <= self.width <= MAX_SIZE and 0 <= self.height <= MAX_SIZE):
             raise BitstreamError("header field out of range")
+        if self.rule not in RULES:
+            raise BitstreamError(f"unknown deformation rule {self.rule!r} (one of {', '.join(RULES)})")
         try:
             if len(bytes.fromhex(self.face_id)) != 32:
                 raise ValueError
         except (ValueError, TypeError):
             raise BitstreamError("face id must be a sha256 hex string") from None
         object.__setattr__(self, "steps", steps)
-        object.__setattr__(self, "self_delimiting", self.self_delimiting and self.trained)
         if self.basis is not None:
             forward, inverse = basis_matrices(self.basis, len(names))
             object.__setattr__(self, "_forward", forward)
             object.__setattr__(self, "_inverse", inverse)
-
-    @property
-    def version(self) -> int:
-        if self.self_delimiting:
-            return VERSION
-        return TRAINED_VERSION if self.trained else 3 if self.basis is None else BASIS_VERSION
 
     def coordinates(self, params: np.ndarray) -> np.ndarray:
         """(k,) parameters -> (k,) coded coordinates in steps (indices are their rounding)."""
@@ -111,8 +101,9 @@ class Header:
 
 def encode_header(h: Header) -> bytes:
     flags = _FLAG_F3_WITH_JAW * h.f3_with_jaw | _FLAG_STATIC * h.skip_static | _FLAG_BASIS * (h.basis is not None)
-    out = bytearray(MAGIC + bytes([h.version, flags, h.quality, h.key_interval, h.divisor]))
-    out += varint(round(h.fps * 1000)) + bytes.fromhex(h.face_id) + varint(h.model_size)
+    out = bytearray(MAGIC + bytes([VERSION, flags, h.quality, h.key_interval, h.divisor, RULES.index(h.rule)]))
+    out += varint(round(h.fps * 1000)) + varint(h.width) + varint(h.height)
+    out += bytes.fromhex(h.face_id) + varint(h.model_size)
     out.append(len(h.names))
     for name in h.names:
         out += bytes([len(name)]) + name.encode("ascii")
@@ -124,15 +115,18 @@ def encode_header(h: Header) -> bytes:
 
 def parse_header(body: bytes) -> Header:
     """Header from a checked header packet's body; BitstreamError if it is not one we can read."""
-    if len(body) < 8 or body[:2] != MAGIC:
+    if len(body) < 9 or body[:2] != MAGIC:
         raise BitstreamError("input is not an fd stream (no fd header)")
-    if body[2] not in READABLE:
-        raise BitstreamError(f"unsupported stream version {body[2]} (this decoder reads "
-                             f"{', '.join(map(str, READABLE))})")
-    flags, quality, key_interval, divisor = body[3:7]
-    if body[2] < TRAINED_VERSION and bool(flags & _FLAG_BASIS) != (body[2] == BASIS_VERSION):
-        raise BitstreamError(f"stream version {body[2]} with{'' if flags & _FLAG_BASIS else 'out'} a basis")
-    fps_milli, pos = _varint(body, 7, 1_000_000)
+    if body[2] != VERSION:
+        raise BitstreamError(f"unsupported stream version {body[2]} (this decoder reads version {VERSION})")
+    flags, quality, key_interval, divisor, rule = body[3:8]
+    if rule >= len(RULES):
+        raise BitstreamError(f"unknown deformation rule {rule}")
+    if flags & ~(_FLAG_F3_WITH_JAW | _FLAG_STATIC | _FLAG_BASIS):
+        raise BitstreamError(f"unknown header flags {flags:#04x}")
+    fps_milli, pos = _varint(body, 8, 1_000_000)
+    width, pos = _varint(body, pos, MAX_SIZE)
+    height, pos = _varint(body, pos, MAX_SIZE)
     if pos + 32 > len(body):
         raise BitstreamError("stream header cut short")
     face_id = body[pos:pos + 32].hex()
@@ -160,7 +154,7 @@ def parse_header(body: bytes) -> Header:
         basis = np.frombuffer(body, dtype=np.int8, count=basis_bytes, offset=pos + 8 * count).reshape(count, count)
     return Header(fps_milli / 1000, tuple(names), steps, face_id, bool(flags & _FLAG_F3_WITH_JAW), quality,
                   key_interval, divisor, bool(flags & _FLAG_STATIC), model_size, basis,
-                  body[2] >= TRAINED_VERSION, body[2] == VERSION)
+                  width, height, RULES[rule])
 
 
 def _varint(body: bytes, pos: int, limit: int) -> tuple[int, int]:

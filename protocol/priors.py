@@ -1,4 +1,4 @@
-"""Trained starting counts of the entropy models of versions 5 and 6, one table per quality level.
+"""Trained starting counts of the stream's entropy models, one table per quality level.
 
 The counts are part of the format: a decoder must start each keyframe's models
 from the same counts as the encoder did, so ``priors.json`` is checked against
@@ -32,7 +32,7 @@ def tables() -> dict[str, dict[str, list[int]]]:
     except OSError as exc:
         raise FdError(f"cannot read {PATH}: {exc.strerror} (reinstall facedeform)") from None
     if hashlib.sha256(data).hexdigest() != SHA256:
-        raise FdError(f"{PATH} is not the entropy table of stream formats 5 and 6 (reinstall facedeform)")
+        raise FdError(f"{PATH} is not the entropy table of this stream format (reinstall facedeform)")
     return json.loads(data)
 
 
@@ -41,12 +41,9 @@ def key_name(key: tuple) -> str:
     return ".".join(map(str, key))
 
 
-def models_for(header: Header, levels: dict[str, dict[str, list[int]]] | None = None) -> NewBit | None:
+def models_for(header: Header, levels: dict[str, dict[str, list[int]]] | None = None) -> NewBit:
     """What a stream's :class:`protocol.entropy.GroupState` makes its models with: the header
     level's trained counts from ``levels`` (default: :func:`tables`; custom steps take the default
-    level's), None before version 5. Version 6 adds models (``frame.more``) that version 5
-    never asks for, so one table serves both."""
-    if not header.trained:
-        return None
+    level's)."""
     table = (levels or tables())[str(header.quality if header.quality in QUALITIES else DEFAULT_QUALITY)]
     return lambda key: AdaptiveBit(*table.get(key_name(key), (0, 0)))

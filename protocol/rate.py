@@ -15,16 +15,20 @@ import numpy as np
 from protocol.encoder import PacketEncoder, frame_bytes
 from protocol.header import Header
 from protocol.quantise import QUALITIES
+from protocol.secure import envelope_bytes
 
 
 def sample_bits_per_second(header: Header, sample: Sequence[tuple[np.ndarray, bool]], frames_per_packet: int,
                            dead_zone: float, seal_bytes: int = 0) -> float:
     """Bit/s of ``sample`` ((k,) params, face seen) coded as a byte stream of its own under ``header``
     (without its face model or end mark: what every second of the call costs). ``seal_bytes``: what
-    sealing adds to each packet (``SecureSealer.overhead``; a sealed packet also takes a sync byte)."""
+    sealing adds to each packet (``SecureSealer.overhead``, and the envelope's length field; a sealed
+    packet also takes a sync byte)."""
     encoder = PacketEncoder(replace(header, model_size=0), frames_per_packet, dead_zone=dead_zone)
     packets = [p for params, seen in sample for p in encoder.frame(params, seen)] + encoder.end()[:-1]
-    size = len(frame_bytes(packets, sealed=bool(seal_bytes))) + seal_bytes * len(packets)
+    size = len(frame_bytes(packets, sealed=bool(seal_bytes)))
+    if seal_bytes:
+        size += sum(envelope_bytes(len(p), seal_bytes) for p in packets)
     return 8 * size * header.fps / len(sample)
 
 

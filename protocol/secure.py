@@ -5,10 +5,12 @@ A stream sealed with a pre-shared key starts with a preamble in clear::
     "FDS" | version (1) | tag bytes (1) | salt (16) | key id (4) | tag
 
 then carries every packet of the ordinary format (header and model included),
-each sealed as::
+each in an envelope that says its own length::
 
-    counter (2 bytes, big-endian) | AES-256-CTR ciphertext of the packet | tag
+    counter (2 bytes, big-endian) | length (varint) | AES-256-CTR ciphertext of the packet | tag
 
+A receiver finds the tag from the envelope alone and checks it before it
+decrypts anything: no byte of a packet is parsed before it is authentic.
 Per-stream keys come from HKDF-SHA256 of the key and the preamble's random
 salt, so a key can serve many streams. The counter is the low 16 bits of a
 48-bit packet index; the receiver restores the rest from the highest index it
@@ -16,8 +18,8 @@ holds, as SRTP does with its rollover counter: two bytes, not a growing varint,
 so the cost stays fixed and up to 32767 lost packets (22 minutes at 25 packets
 per second) keep sync. The counter block of AES-CTR is IV (8 bytes, from HKDF)
 | index (6) | block (2), so no keystream is ever used twice and the ciphertext
-is exactly as long as the packet. The tag is HMAC-SHA256 over the index and the
-ciphertext, truncated to 4 bytes unless asked for more (up to 16); the
+is exactly as long as the packet. The tag is HMAC-SHA256 over the index, the
+length and the ciphertext, truncated to 4 bytes unless asked for more (up to 16); the
 preamble's own tag proves the salt. The key id (a hash of the key) lets a
 receiver holding another key say so rather than see noise. No I/O here.
 """
@@ -31,15 +33,15 @@ from cryptography.hazmat.primitives.ciphers import Cipher, algorithms, modes
 
 from common.errors import BitstreamError, InputError
 from common.keys import KEY_ID_BYTES, derive, key_id
-from protocol.framing import MAX_BODY, SYNC, Delta, packet_size
+from protocol.framing import MAX_BODY, read_varint, varint
 
-MAGIC = b"FDS\x01"
+MAGIC = b"FDS\x02"  # version 2: envelopes with a length
 SALT_BYTES = 16
 DEFAULT_TAG_BITS = 32
 TAG_BITS = tuple(range(32, 129, 8))
 WINDOW = 64  # packets: later than this behind the newest is a replay (or useless anyway)
 COUNTER_BYTES = 2
-_MAX_PACKET = 1 + 2 + MAX_BODY + 4  # the longest inner packet: type, length, body, CRC-32
+MAX_SEALED = MAX_BODY + 16  # bytes of one sealed packet: longer than any the encoder makes
 _MAX_INDEX = 1 << 48
 
 
@@ -81,7 +83,7 @@ class SecureSealer:
 
     @property
     def overhead(self) -> int:
-        """Bytes sealing adds to each packet: counter and tag."""
+        """Bytes sealing adds to each packet apart from its length field (:func:`envelope_bytes`)."""
         return COUNTER_BYTES + self.tag_bytes
 
     def preamble(self) -> bytes:
@@ -89,18 +91,24 @@ class SecureSealer:
         return data + self._keys.tag(b"\0", data, self.tag_bytes)
 
     def seal(self, packet: bytes) -> bytes:
-        """One packet of a version 2-5 stream (a byte stream of sealed packets reads each inner
-        packet's length, which version 6's keyframe and delta packets do not carry)."""
-        if packet[:1] == bytes([SYNC]) or isinstance(packet, Delta):
-            raise BitstreamError("sealed streams carry version 5 packets (Header(self_delimiting=False))")
+        """One packet, as the encoder returns it, in its envelope."""
+        if not 0 < len(packet) <= MAX_SEALED:
+            raise BitstreamError(f"cannot seal a packet of {len(packet)} bytes")
         if self._index >= _MAX_INDEX:
             raise BitstreamError("stream too long for one key stream: start a new one")
         index, self._index = self._index, self._index + 1
-        body = index.to_bytes(6, "big")[-COUNTER_BYTES:] + self._keys.crypt(index, packet)
-        return body + self._keys.tag(b"\1" + index.to_bytes(6, "big"), body[COUNTER_BYTES:], self.tag_bytes)
+        body = varint(len(packet)) + self._keys.crypt(index, packet)
+        tag = self._keys.tag(b"\1" + index.to_bytes(6, "big"), body, self.tag_bytes)
+        return index.to_bytes(6, "big")[-COUNTER_BYTES:] + body + tag
 
     def seal_all(self, packets: list[bytes]) -> list[bytes]:
         return [self.seal(p) for p in packets]
+
+
+def envelope_bytes(size: int, overhead: int) -> int:
+    """Bytes sealing adds to a packet of ``size`` bytes: ``overhead`` (:attr:`SecureSealer.overhead`)
+    and the length field."""
+    return overhead + len(varint(size))
 
 
 @dataclass
@@ -168,34 +176,35 @@ class SecureOpener:
         return self._highest + delta if self._highest >= 0 else counter
 
     def size(self, data: bytes, pos: int) -> int | None:
-        """Size of the sealed packet at ``data[pos]`` (byte streams), None if more bytes are needed.
-
-        Decrypts the packet's first bytes to read its length (no byte of
-        framing is sent for it); the tag then decides. Raises BitstreamError
-        when the bytes cannot start one.
-        """
-        head = bytes(data[pos:pos + COUNTER_BYTES + 4])
-        if len(head) <= COUNTER_BYTES:
+        """Size of the sealed packet at ``data[pos]`` (byte streams) from its envelope alone, None if
+        more bytes are needed to tell; BitstreamError when the bytes cannot start one."""
+        got = read_varint(data, pos + COUNTER_BYTES, MAX_SEALED)
+        if got is None:
             return None
-        index = self._index(int.from_bytes(head[:COUNTER_BYTES], "big"))
-        if not 0 <= index < _MAX_INDEX:
-            raise BitstreamError("packet counter out of range")
-        size = packet_size(self._keys.crypt(index, head[COUNTER_BYTES:]), 0)
-        return None if size is None else COUNTER_BYTES + size + self.tag_bytes
+        n, start = got
+        if not n:
+            raise BitstreamError("empty sealed packet")
+        return start - pos + n + self.tag_bytes
 
     def open(self, sealed: bytes) -> bytes | None:
-        """The packet inside ``sealed``, or None (counted) if it fails authentication or replays."""
-        if not self._keys or not COUNTER_BYTES + 1 + self.tag_bytes <= len(sealed) <= \
-                COUNTER_BYTES + _MAX_PACKET + self.tag_bytes:
+        """The packet inside ``sealed``, or None (counted) if it fails authentication or replays.
+
+        The envelope's length and tag are checked before anything is decrypted."""
+        try:
+            got = read_varint(sealed, COUNTER_BYTES, MAX_SEALED)
+        except BitstreamError:
+            got = None
+        keys = self._keys
+        if keys is None or got is None or not got[0] or got[1] + got[0] + self.tag_bytes != len(sealed):
             self.stats.auth_failures += 1
             return None
         index = self._index(int.from_bytes(sealed[:COUNTER_BYTES], "big"))
         age = self._highest - index
-        if index < 0 or age >= self._window or (age >= 0 and self._seen >> age & 1):
+        if not 0 <= index < _MAX_INDEX or age >= self._window or (age >= 0 and self._seen >> age & 1):
             self.stats.replays += 1
             return None
         body, tag = bytes(sealed[COUNTER_BYTES:-self.tag_bytes]), bytes(sealed[-self.tag_bytes:])
-        if not hmac.compare_digest(self._keys.tag(b"\1" + index.to_bytes(6, "big"), body, self.tag_bytes), tag):
+        if not hmac.compare_digest(keys.tag(b"\1" + index.to_bytes(6, "big"), body, self.tag_bytes), tag):
             self.stats.auth_failures += 1
             return None
         if age < 0:
@@ -203,7 +212,7 @@ class SecureOpener:
         else:
             self._seen |= 1 << age
         self.stats.opened += 1
-        return self._keys.crypt(index, body)
+        return keys.crypt(index, bytes(sealed[got[1]:-self.tag_bytes]))
 
     def no_stream(self) -> str:
         """Why nothing could be opened, for the user."""
@@ -212,4 +221,6 @@ class SecureOpener:
                     f"this key's is {self._key_id.hex()})")
         if self._keys is None:
             return "no sealed fd stream arrived (is the sender using --key?)"
+        if self.stats.opened:
+            return "the sealed stream's header did not arrive intact"
         return "no packet of the sealed stream could be authenticated"

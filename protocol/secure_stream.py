@@ -1,7 +1,8 @@
 """Sealed streams in, events out: the decoders of protocol/stream.py behind a :class:`SecureOpener`.
 
-Only packets that authenticate reach the packet decoder, so forged, damaged or
-replayed packets cannot change its state: a flood of junk datagrams is counted
+Only packets that authenticate reach the packet decoder (the envelope says its
+own length, and its tag is checked before a byte inside is decrypted), so
+forged, damaged or replayed packets cannot change its state: a flood of junk datagrams is counted
 and otherwise ignored, and the real stream's frames come through untouched. On
 a byte stream a packet that fails is damage as in the clear format (the decoder
 resumes at the next sync byte); a datagram that fails is just dropped, since it
@@ -35,9 +36,12 @@ class SecureDatagramDecoder(_Secure):
     def receive(self, data: bytes) -> list:
         if self.opener.wants_preamble(data):
             self.opener.preamble(data)
-            return []
-        packet = self.opener.open(data)
-        return [] if packet is None else self._core.receive(packet)
+            events = []
+        else:
+            packet = self.opener.open(data)
+            events = [] if packet is None else self._core.packet(packet)
+        self._core.position += len(data)  # junk too: what pays for frames (protocol/decoder.py)
+        return events
 
 
 class SecureStreamDecoder(_Secure, ByteStreamDecoder):
@@ -67,8 +71,7 @@ class SecureStreamDecoder(_Secure, ByteStreamDecoder):
         packet = self.opener.open(sealed) if size else None
         if packet is None:
             return self._skip(1, "packet fails authentication"), 1
-        got = self._core.accept(packet)  # authentic: never resync inside it
-        return (self._core.damage("packet cannot be decoded here") if got is None else got), 1 + size
+        return self._core.packet(packet), 1 + size  # authentic: never resync inside it
 
     def _size(self, pos: int, preamble: bool) -> int | None:
         """0 when the bytes at ``pos`` cannot start a preamble (or a sealed packet)."""

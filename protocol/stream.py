@@ -1,5 +1,4 @@
-"""Stream format versions 3 to 6 (4: 3 with a coding basis; 5: trained entropy models; 6: self-delimiting
-frames packets): the public API in one import.
+"""The stream format (one version, :data:`VERSION`): the public API in one import.
 
 No I/O here: encoders return bytes or packets, decoders take bytes in any
 chunking (byte streams) or one packet at a time (datagrams) and return events.

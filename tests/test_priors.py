@@ -1,4 +1,4 @@
-"""Version 5's trained starting counts: a fixed part of the format, complete and checked."""
+"""The trained starting counts of the entropy models: a fixed part of the format, complete and checked."""
 
 import hashlib
 import json
@@ -13,10 +13,10 @@ import pytest
 
 from codec.face_model import load_base_face
 from protocol import priors
-from receiver import cli as receiver_cli
 from protocol.entropy import GroupState
 from protocol.quantise import QUALITIES
 from protocol.stream import Frame, Header, StreamDecoder, StreamEncoder, steps_for
+from receiver import cli as receiver_cli
 from sender.analysis import LAYOUTS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -25,7 +25,7 @@ NAMES = ("theta", "v2x", "v2y", "v2z", "v3x", "v3y", "v3z", "v8x", "v8y", "v8z",
 
 
 def model_names() -> set[str]:
-    """Every model a version 5 group makes, by the name the table uses."""
+    """Every model a group makes, by the name the table uses."""
     made = []
     GroupState(12, True, lambda key: made.append(priors.key_name(key)) or priors.AdaptiveBit())
     return set(made)
@@ -42,7 +42,7 @@ def test_every_level_has_a_table_of_small_counts_for_models_that_exist():
 
 
 @pytest.mark.parametrize("damage, message", [
-    (lambda data: data.replace(b"[", b"[1", 1), "is not the entropy table of stream formats 5 and 6"),
+    (lambda data: data.replace(b"[", b"[1", 1), "is not the entropy table of this stream format"),
     (None, "cannot read"),
 ])
 def test_a_table_that_is_not_this_versions_is_refused_in_one_line(tmp_path, monkeypatch, capsys, damage, message):
@@ -74,7 +74,6 @@ def test_trained_models_start_from_the_levels_counts_and_custom_steps_take_the_d
     key = tuple(int(p) if p.isdigit() else p for p in name.split("."))
     model = priors.models_for(level)(key)
     assert (model.n0, model.n1) == (n0, n1)
-    assert priors.models_for(replace(level, trained=False)) is None
     three = priors.tables()["3"].get(name, [0, 0])
     assert [priors.models_for(custom)(key).n0, priors.models_for(custom)(key).n1] == three
     params = np.cumsum(np.random.default_rng(3).normal(0, 2, (40, len(NAMES))), axis=0) * custom.steps

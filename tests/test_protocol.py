@@ -1,6 +1,8 @@
 """The stream format: exact round trip, any chunking, survival of damage, bounded refusal of hostile input."""
 
 from dataclasses import replace
+from functools import cache
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,13 +10,23 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from codec.deform import PAPER_PARAMS
-from common.errors import BitstreamError
-from protocol.framing import DELTA, HEADER, SHORT, SHORT_LENGTHS, SYNC, Delta, build, is_delta, is_short
+from common.errors import BitstreamError, FdError
 from protocol.basis import SCALE
-from protocol.header import MAX_MODEL, encode_header
+from protocol.framing import END, HEADER, SYNC, Delta, build, varint
+from protocol.header import MAX_MODEL, MAX_SIZE, VERSION, encode_header, parse_header
 from protocol.quantise import QUALITIES, dequantise, hold_or_round, quantise
-from protocol.stream import (Damage, DatagramDecoder, End, Frame, Header, Model, PacketEncoder, StreamDecoder,
-                             frame_bytes, steps_for)
+from protocol.stream import (
+    Damage,
+    DatagramDecoder,
+    End,
+    Frame,
+    Header,
+    Model,
+    PacketEncoder,
+    StreamDecoder,
+    frame_bytes,
+    steps_for,
+)
 
 LAYOUTS = (PAPER_PARAMS, PAPER_PARAMS + ("rx", "ry", "rz"))
 FACE = "ab" * 32
@@ -63,11 +75,10 @@ def frames(events) -> list[Frame]:
 @settings(max_examples=40, deadline=None)
 @given(st.sampled_from(LAYOUTS), st.sampled_from(QUALITIES), st.integers(1, 32), st.booleans(),
        st.integers(1, 30), st.lists(st.floats(-2, 2), min_size=0, max_size=60), st.integers(0, 2**32 - 1),
-       st.booleans(), st.sampled_from([6, 5, 3]))
-def test_round_trip_gives_the_quantised_values(names, quality, fpp, static, key, jumps, seed, basis, version):
+       st.booleans())
+def test_round_trip_gives_the_quantised_values(names, quality, fpp, static, key, jumps, seed, basis):
     h = header(names, quality, skip_static=static, key_interval=key,
-               basis=random_basis(len(names), seed) if basis else None, trained=version > 3,
-               self_delimiting=version == 6)
+               basis=random_basis(len(names), seed) if basis else None)
     params = walk(len(jumps), len(names), seed) + np.array(jumps)[:, None]
     params[1::3] = params[0::3][:len(params[1::3])]  # static runs
     faces = [bool(i % 5) for i in range(len(params))]
@@ -160,7 +171,7 @@ def test_datagrams_decode_like_the_byte_stream():
 @given(st.integers(1, 12), st.integers(1, 9), st.lists(st.floats(-2, 2), min_size=1, max_size=40),
        st.integers(0, 2**32 - 1), st.lists(st.integers(1, 9), min_size=1, max_size=8))
 def test_any_chunking_gives_the_frames_of_the_whole(fpp, key, jumps, seed, chunks):
-    """A version 6 packet is read as soon as its last byte is in, whatever follows it or not yet."""
+    """A packet is read as soon as its last byte is in, whatever follows it or not yet."""
     params = walk(len(jumps), 13, seed) + np.array(jumps)[:, None]
     params[1::4] = params[0::4][:len(params[1::4])]
     data = frame_bytes(encode(header(skip_static=True, key_interval=key), params, fpp))
@@ -189,37 +200,34 @@ def test_byte_by_byte_equals_whole():
 
 
 GOLDEN_PARAMS = np.array([[0.0, 0.0], [0.5, 0.004], [0.5, 0.004], [1.0, -0.01], [1.0, 0.0]])
+GOLDEN = Path(__file__).with_name("fixtures") / f"golden_v{VERSION}.fd"
 
 
 def golden_header() -> Header:
-    return Header(25.0, ("theta", "v2x"), steps_for(("theta", "v2x")), FACE, key_interval=4)
+    return Header(25.0, ("theta", "v2x"), steps_for(("theta", "v2x")), FACE, key_interval=4, skip_static=True,
+                  width=640, height=480)
 
 
 def test_golden_stream_bytes_are_stable():
     """Fixed input, fixed bytes: a change here is a format change and needs a new version."""
-    assert frame_bytes(encode(golden_header(), GOLDEN_PARAMS)).hex() == GOLDEN
+    assert frame_bytes(encode(golden_header(), GOLDEN_PARAMS)) == GOLDEN.read_bytes()
 
 
-@pytest.mark.parametrize("change, golden", [
-    ({"self_delimiting": False}, "GOLDEN_V5"),  # packets with lengths: what sealed streams carry
-    ({"trained": False}, "GOLDEN_V3"),  # flat entropy models: what older decoders read
-])
-def test_older_versions_are_still_written_and_read(change, golden):
-    old, expected = replace(golden_header(), **change), globals()[golden]
-    assert frame_bytes(encode(old, GOLDEN_PARAMS)).hex() == expected
-    events, dec = decode(bytes.fromhex(expected))
-    assert dec.header == old and not dec.stats.damaged
-    np.testing.assert_array_equal([f.params for f in frames(events)], GOLDEN_PARAMS)
+def test_the_golden_stream_decodes_and_codes_back_to_itself():
+    """serialize(parse(x)) == x: the header and the decoded frames, coded again, give the same bytes,
+    whole and fed a byte at a time."""
+    data = GOLDEN.read_bytes()
+    for chunk in (None, 1):
+        events, dec = decode(data, chunk)
+        assert events[0] == golden_header() and events[-1] == End(len(GOLDEN_PARAMS)) and not dec.stats.damaged
+        decoded = np.array([f.params for f in frames(events)])
+        np.testing.assert_array_equal(decoded, GOLDEN_PARAMS)
+        assert frame_bytes(encode(dec.header, decoded)) == data
+    body = encode_header(golden_header())
+    assert encode_header(parse_header(body)) == body
 
 
-def test_a_version_2_stream_still_decodes():
-    """Version 2 had a sync byte and a length before every delta: the same input then gave these bytes."""
-    events, dec = decode(bytes.fromhex(GOLDEN_V2))
-    assert dec.header.names == golden_header().names and not dec.stats.damaged
-    np.testing.assert_array_equal([f.params for f in frames(events)], GOLDEN_PARAMS)
-
-
-def test_version_6_deltas_end_themselves():
+def test_deltas_end_themselves():
     """No length, no sync byte, never the sync byte first; every other packet starts with its sync
     byte, in datagrams too, so a byte stream is the packets end to end."""
     packets = encode(header(skip_static=True), walk(60, 13), fpp=2)
@@ -227,46 +235,13 @@ def test_version_6_deltas_end_themselves():
     assert len(deltas) > 20 and all(p[0] != SYNC for p in deltas)
     assert all(p[0] == SYNC for p in packets if not isinstance(p, Delta))
     assert frame_bytes(packets) == b"".join(packets)
-    v5 = encode(header(skip_static=True, self_delimiting=False), walk(60, 13), fpp=2)
-    assert len(frame_bytes(packets)) < len(frame_bytes(v5)) - len(deltas) // 2  # the length byte, less the end's bits
 
 
-def test_deltas_have_no_sync_byte_and_small_ones_are_short():
-    """Version 5's deltas: a byte of count and length where they fit."""
-    packets = encode(header(self_delimiting=False), walk(60, 13), fpp=2)
-    deltas = [p for p in packets if p[0] >> 5 == DELTA or is_short(p[0])]
-    short = [p for p in deltas if is_short(p[0])]
-    assert len(short) > 0.9 * len(deltas)
-    for p in short:  # one byte of count and length, the body, the CRC-8
-        count, length = divmod(p[0] - SHORT, SHORT_LENGTHS)
-        assert count + 1 in (1, 2) and len(p) == 1 + length + 1  # 1: the last before a keyframe
-    assert len(frame_bytes(packets)) == sum(map(len, packets)) + len(packets) - len(deltas)
-    long = encode(header(self_delimiting=False), walk(60, 13), fpp=8)  # 8 frames: more than a short delta holds
-    assert [p[0] & 0x1F for p in long if p[0] >> 5 == DELTA] == [7] * 4  # those before a keyframe or the end: short
-    assert len(frame_bytes(long)) == sum(map(len, long)) + sum(not is_delta(p[0]) for p in long)
-    np.testing.assert_array_equal([f.params for f in frames(decode(frame_bytes(long))[0])],
-                                  [f.params for f in frames(decode(frame_bytes(encode(header(self_delimiting=False),
-                                                                                      walk(60, 13))))[0])])
-
-
-GOLDEN = ("fd004646440600030401a8c301abababababababababababababababababababababababababababababababab0002"
-          "057468657461037632783fd00000000000003f60624dd2f1a9fc982a758afd400007906a73750cc48094ce"
-          "fd40043722bd58fd8001059452")
-GOLDEN_V5 = ("fd004646440500030401a8c301abababababababababababababababababababababababababababababababab0002"
-             "057468657461037632783fd00000000000003f60624dd2f1a9fc376cddecfd400200080534a17623a110aba18237"
-             "fd40030437804af2fd8001059452")
-GOLDEN_V3 = ("fd004646440300030401a8c301abababababababababababababababababababababababababababababababab0002"
-             "057468657461037632783fd00000000000003f60624dd2f1a9fcb2908b61fd4002008015b4a2bc40fca1401ca1a2d7"
-             "fd400204d8028dfd8001059452")
-GOLDEN_V2 = ("fd004646440200030401a8c301abababababababababababababababababababababababababababababababab0002"
-             "057468657461037632783fd00000000000003f60624dd2f1a9fcd7ad1343fd4002008015b4fd6002bc4095fd6001403b"
-             "fd6001a28dfd400204d8028dfd8001059452")
-
-
-def test_every_truncated_prefix_keeps_its_frames_and_reports_the_cut():
-    data = frame_bytes(encode(header(), walk(6, 13)))
+@pytest.mark.parametrize("golden", [False, True])
+def test_every_truncated_prefix_keeps_its_frames_and_reports_the_cut(golden):
+    data = GOLDEN.read_bytes() if golden else frame_bytes(encode(header(), walk(6, 13)))
     full = frames(decode(data)[0])
-    header_end = len(frame_bytes(encode(header(), walk(0, 13))[:1]))
+    header_end = len(encode(golden_header() if golden else header(), walk(0, 13))[0])
     for cut in range(len(data)):
         dec = StreamDecoder()
         if cut < header_end:
@@ -305,11 +280,10 @@ def test_damage_is_concealed_until_the_next_keyframe(damage):
         np.testing.assert_array_equal(f.params, dequantise(quantise(params[f.seq], h.steps), h.steps))
 
 
-def test_damage_to_a_long_delta_is_concealed_until_the_next_keyframe():
-    """Version 5 (no long deltas in version 6)."""
+def test_damage_to_a_delta_of_many_frames_is_concealed_until_the_next_keyframe():
     params = walk(40, 13)
-    packets = encode(header(key_interval=20, self_delimiting=False), params, fpp=8)  # header, key 0-7, deltas 8-15 and 16-19, key 20-27...
-    assert packets[2][0] >> 5 == DELTA
+    packets = encode(header(key_interval=20), params, fpp=8)  # header, key 0-7, deltas 8-15 and 16-19, key 20-27...
+    assert isinstance(packets[2], Delta)
     packets[2] = packets[2][:-1] + bytes([packets[2][-1] ^ 0x01])
     events, dec = decode(frame_bytes(packets))
     got = frames(events)
@@ -337,8 +311,9 @@ def test_face_model_travels_after_the_header():
     (b"", "empty input"),
     (b"hello, this is not a stream", "not an fd stream"),
     (bytes(70000), "not an fd stream"),
-    (b"\xfd" + build(HEADER, b"FD\x63" + bytes(40)), "unsupported stream version 99"),
-    (b"\xfd" + build(HEADER, encode_header(header())[:-3]), "header length"),
+    (build(HEADER, b"FD\x63" + bytes(40)), "unsupported stream version 99 \\(this decoder reads version 7\\)"),
+    (build(HEADER, b"FD\x06" + bytes(40)), "unsupported stream version 6"),
+    (build(HEADER, encode_header(header())[:-3]), "header length"),
 ])
 def test_foreign_input_raises_bitstream_error(data, message):
     dec = StreamDecoder()
@@ -349,38 +324,48 @@ def test_foreign_input_raises_bitstream_error(data, message):
 
 def test_hostile_header_is_refused_before_allocation():
     body = bytearray(encode_header(header()))
-    model_at = 2 + 5 + 2 + 32  # magic, version and four bytes, fps varint, face id
+    model_at = 2 + 6 + len(varint(25000)) + 2 + 32  # magic, version and five bytes, fps, width, height, face id
     body[model_at:model_at + 1] = b"\xff\xff\xff\xff\x0f"  # model size 2**32 - 1
     with pytest.raises(BitstreamError, match="over its limit"):
-        StreamDecoder().feed(b"\xfd" + build(HEADER, bytes(body)))
+        StreamDecoder().feed(build(HEADER, bytes(body)))
     assert MAX_MODEL < 2**32 - 1
     dec = StreamDecoder()  # a length field over the packet limit is skipped, not waited for
-    events = dec.feed(frame_bytes(encode(header(), walk(1, 13))[:1]) + b"\xfd\x60\xff\xff\xff\xff\x0f")
+    events = dec.feed(frame_bytes(encode(header(), walk(1, 13))[:1]) + b"\xfd\x80\xff\xff\xff\xff\x0f")
     assert dec.stats.skipped_bytes > 0 and len(events) == 1
 
 
-@settings(max_examples=1500, deadline=None)
-@given(st.binary(max_size=64), st.integers(0, 10_000), st.integers(0, 8), st.integers(1, 4))
-def test_fuzz_nothing_but_bitstream_error_escapes(junk, position, flips, fpp):
+@cache
+def fuzz_packets(fpp: int) -> list[bytes]:
     basis = random_basis(13) if fpp % 2 else None  # the header's basis is fuzzed too
-    data = bytearray(frame_bytes(encode(header(skip_static=True, basis=basis), walk(30, 13), fpp)))
+    return encode(header(skip_static=True, basis=basis), walk(30, 13), fpp)
+
+
+@settings(max_examples=1000, deadline=None)
+@given(st.binary(max_size=64), st.integers(0, 10_000), st.integers(0, 8), st.integers(1, 4))
+def test_fuzz_nothing_but_our_errors_escape(junk, position, flips, fpp):
+    """Junk and flipped bits anywhere, fed as a byte stream and as datagrams: only FdError escapes."""
+    data = bytearray(frame_bytes(fuzz_packets(fpp)))
     position %= len(data)
     for i in range(flips):
         data[(position + 37 * i) % len(data)] ^= 1 << (i % 8)
     data[position:position] = junk
-    dec = StreamDecoder()
-    try:
-        events = dec.feed(bytes(data[:position])) + dec.feed(bytes(data[position:])) + dec.close()
-    except BitstreamError:
-        return
-    seqs = [f.seq for f in frames(events)]
-    assert seqs == sorted(set(seqs))
+    for dec in (StreamDecoder(), DatagramDecoder()):
+        try:
+            if isinstance(dec, StreamDecoder):
+                events = dec.feed(bytes(data[:position])) + dec.feed(bytes(data[position:])) + dec.close()
+            else:
+                ends = np.cumsum([len(p) for p in fuzz_packets(fpp)])  # the packets, damaged, as datagrams
+                events = [e for a, b in zip([0, *ends[:-1]], ends) for e in dec.receive(bytes(data[a:b]))]
+        except FdError:
+            continue
+        seqs = [f.seq for f in frames(events)]
+        assert seqs == sorted(set(seqs))
 
 
-@settings(max_examples=500, deadline=None)
+@settings(max_examples=300, deadline=None)
 @given(st.lists(st.binary(max_size=40), max_size=20))
 def test_fuzz_datagrams(datagrams):
-    packets = encode(header(), walk(10, 13))
+    packets = fuzz_packets(2)
     dec = DatagramDecoder()
     dec.receive(packets[0])
     for d in datagrams + packets[1:]:
@@ -389,11 +374,10 @@ def test_fuzz_datagrams(datagrams):
 
 
 def test_delta_from_another_position_is_rejected():
-    packets = encode(header(), walk(3, 13))
-    moved = build(DELTA, b"\x01", 1, first_frame=7)
-    events = DatagramDecoder()
-    for p in packets[:2] + [moved]:
-        out = events.receive(p)
+    packets = encode(header(), walk(3, 13))  # header, keyframe 0, deltas 1 and 2, end
+    dec = DatagramDecoder()
+    for p in packets[:2] + [packets[3]]:
+        out = dec.receive(p)
     assert isinstance(out[0], Damage)
 
 
@@ -405,7 +389,8 @@ def test_bitrate_choice_is_the_finest_level_that_codes_the_sample_within_the_tar
     assert all(rates[q] < rates[q + 1] for q in QUALITIES[:-1])  # finer levels cost more
     for q in QUALITIES:
         assert quality_for_bitrate(lambda level: header(quality=level), sample, rates[q], 2, 1.0) == q
-        assert quality_for_bitrate(lambda level: header(quality=level), sample, rates[q] * 0.999, 2, 1.0) == max(q - 1, 1)
+        below = quality_for_bitrate(lambda level: header(quality=level), sample, rates[q] * 0.999, 2, 1.0)
+        assert below == max(q - 1, 1)
     # a model carried in-band is one-off: it does not count against the rate
     assert sample_bits_per_second(header(model_size=5000), sample, 2, 1.0) == rates[3]
 
@@ -417,7 +402,7 @@ def test_bitrate_estimate_is_what_the_stream_takes(sealed, divisor):
     from protocol.rate import sample_bits_per_second
     from protocol.secure import SecureSealer
 
-    h = header(divisor=divisor, key_interval=25 // divisor, skip_static=True, self_delimiting=not sealed)
+    h = header(divisor=divisor, key_interval=25 // divisor, skip_static=True)
     sample = [(p, True) for p in walk(25, len(PAPER_PARAMS), seed=4)]
     sealer = SecureSealer(bytes(32)) if sealed else None
     estimate = sample_bits_per_second(h, sample, 2, 1.0, sealer.overhead if sealed else 0)
@@ -426,3 +411,104 @@ def test_bitrate_estimate_is_what_the_stream_takes(sealed, divisor):
     if sealed:
         packets = sealer.seal_all(packets)
     assert estimate == 8 * len(frame_bytes(packets, sealed))  # a second of frames: bits are bit/s
+
+
+@pytest.mark.parametrize("width, height, rule", [(0, 0, "refined"), (640, 480, "paper"), (MAX_SIZE, 1, "paper")])
+def test_frame_size_and_rule_travel_in_the_header(width, height, rule):
+    h = header(width=width, height=height, rule=rule)
+    back = parse_header(encode_header(h))
+    assert back == h and (back.width, back.height, back.rule) == (width, height, rule)
+    assert header(rule="paper") != header()
+
+
+@pytest.mark.parametrize("change", [{"width": MAX_SIZE + 1}, {"height": -1}, {"rule": "other"},
+                                    {"steps": steps_for(PAPER_PARAMS) * 1e306}, {"steps": -steps_for(PAPER_PARAMS)}])
+def test_header_fields_out_of_range_are_refused(change):
+    with pytest.raises(BitstreamError):
+        replace(header(), **change)
+
+
+def header_bytes_with(h: Header, at: int, value: bytes, length: int = 1) -> bytes:
+    body = bytearray(encode_header(h))
+    body[at:at + length] = value
+    return build(HEADER, bytes(body))
+
+
+@pytest.mark.parametrize("patch, message", [
+    (lambda h: header_bytes_with(h, 7, b"\x02"), "unknown deformation rule 2"),
+    (lambda h: header_bytes_with(h, 3, b"\x08"), "unknown header flags"),
+    (lambda h: header_bytes_with(h, 8 + len(varint(25000)), b"\x81\x80\x01"), "over its limit"),  # width 16385
+    (lambda h: header_bytes_with(h, len(encode_header(h)) - 8, np.float64(1e306).byteswap().tobytes(), 8),
+     "quantiser steps"),
+    (lambda h: header_bytes_with(h, len(encode_header(h)) - 8, np.float64(np.nan).byteswap().tobytes(), 8),
+     "quantiser steps"),
+])
+def test_hostile_header_values_are_refused_at_parse(patch, message):
+    """A step that could make a decoded value non-finite (1e306 times an index) is refused with the
+    header, not met as a traceback later."""
+    with pytest.raises(BitstreamError, match=message):
+        StreamDecoder().feed(patch(header()))
+
+
+def keyframe_at(h: Header, coded: int) -> list[bytes]:
+    """The packets of a keyframe numbered ``coded`` (a multiple of the key interval), as the project's
+    encoder makes them: the encoder as if it had coded that many frames already."""
+    enc = PacketEncoder(h)
+    enc._frames = coded * h.divisor
+    return enc.frame(np.zeros(len(h.names)), True)
+
+
+def end_mark(frames: int) -> bytes:
+    return build(END, varint(frames))
+
+
+def hostile_streams() -> dict[str, list[bytes]]:
+    """Streams whose every packet passes its check, each claiming frames no received bytes paid for."""
+    h, slow = header(), header(divisor=16, key_interval=250)
+    packets = encode(h, walk(10, 13))
+    return {
+        "end mark of 2**40 - 1 frames": packets[:1] + [end_mark(2**40 - 1)],
+        "end mark of 10**6 frames after 10": packets[:-1] + [end_mark(10**6)],
+        "keyframe 10**9": packets[:1] + keyframe_at(h, 10**9) + [end_mark(10**9 * 1 + 1)],
+        "sequence jump to 4e9": packets[:-1] + keyframe_at(h, 4 * 10**9) + packets[1:3],
+        "divisor 16, keyframe 10**6": encode(slow, walk(20, 13))[:-1] + keyframe_at(slow, 10**6),
+        "divisor 16, end mark": encode(slow, walk(20, 13))[:-1] + [end_mark(16 * 10**7)],
+    }
+
+
+@pytest.mark.parametrize("name", sorted(hostile_streams()))
+@pytest.mark.parametrize("transport", ["stream", "datagrams"])
+def test_hostile_claims_are_damage_in_bounded_memory(name, transport):
+    """Each claim is a Damage event and the decoder waits for the next keyframe; memory stays small."""
+    import tracemalloc
+
+    packets = hostile_streams()[name]
+    tracemalloc.start()
+    try:
+        if transport == "stream":
+            dec = StreamDecoder()
+            events = dec.feed(frame_bytes(packets)) + dec.close()
+        else:
+            dec = DatagramDecoder()
+            events = [e for p in packets for e in dec.receive(p)]
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2 << 20, f"{peak} bytes"
+    damage = [e for e in events if isinstance(e, Damage)]
+    assert damage and any("ahead" in e.reason or "end mark claims" in e.reason for e in damage)
+    assert len(frames(events)) <= 16 * 30 and not any(isinstance(e, End) and e.frames > 100 for e in events)
+
+
+def test_a_keyframe_far_ahead_is_taken_once_enough_bytes_arrived():
+    """The bound is on frames per received byte, not on gaps: after a long outage (datagrams lost)
+    the first keyframe is refused, and the packets that follow pay for the gap."""
+    packets = encode(header(key_interval=25), walk(2000, 13), fpp=2)
+    keys = [i for i, p in enumerate(packets) if p[:1] == bytes([SYNC]) and p[1] >> 5 == 2]
+    first = keys[60]  # frame 1500: 1475 frames after the last one received, more than its bytes allow
+    dec = DatagramDecoder()
+    events = [e for p in packets[:keys[1]] + packets[first:] for e in dec.receive(p)]
+    got = frames(events)
+    assert [f.seq for f in got] == list(range(2000)) and dec.ended
+    assert [f.seq for f in got if f.concealed] == list(range(25, 1525))
+    assert [e.seq for e in events if isinstance(e, Damage) and "ahead" in e.reason] == [25]

@@ -36,15 +36,13 @@ def smooth_tracks(n=N) -> np.ndarray:
     return scale * (0.5 + 0.5 * np.sin(2 * np.pi * (1.5 + 0.1 * phase) * t + phase))
 
 
-def header(face_id=GENERIC.content_id, model_size=0, sealed=False) -> Header:
-    """Sealed streams carry version 5 (protocol/secure.py)."""
-    return Header(FPS, NAMES, steps_for(NAMES), face_id, key_interval=KEY, model_size=model_size,
-                  self_delimiting=not sealed)
+def header(face_id=GENERIC.content_id, model_size=0) -> Header:
+    return Header(FPS, NAMES, steps_for(NAMES), face_id, key_interval=KEY, model_size=model_size)
 
 
-def stream_packets(params, fpp=2, sealed=False):
+def stream_packets(params, fpp=2):
     """The stream as datagrams: [(packet, (first, last) frame it carries, or None)], header to end mark."""
-    enc = PacketEncoder(header(sealed=sealed), fpp)
+    enc = PacketEncoder(header(), fpp)
     out = [(p, None) for p in enc.header()]
     first = 0
     for i, p in enumerate(params):

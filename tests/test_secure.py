@@ -4,11 +4,15 @@ import os
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from codec.deform import PAPER_PARAMS, POSE_PARAMS
-from common.errors import BitstreamError, InputError
 from codec.upper_face import UPPER_PARAMS
+from common.errors import BitstreamError, FdError, InputError
 from common.keys import key_id, parse_key
+from protocol.decoder import PacketDecoder
+from protocol.framing import varint
 from protocol.secure import SecureOpener, SecureSealer, preamble_size
 from protocol.secure_stream import SecureDatagramDecoder, SecureStreamDecoder, seal_stream
 from protocol.stream import DatagramDecoder, Frame, Header, Model, PacketEncoder, frame_bytes, steps_for
@@ -19,8 +23,7 @@ MODEL = bytes(range(256)) * 9  # three model chunks, contents opaque to the prot
 
 
 def clear_packets(names, fpp=2, n=60, model=b"") -> list[bytes]:
-    header = Header(25.0, names, steps_for(names), "ab" * 32, key_interval=25, model_size=len(model),
-                    self_delimiting=False)  # sealed streams carry version 5
+    header = Header(25.0, names, steps_for(names), "ab" * 32, key_interval=25, model_size=len(model))
     enc = PacketEncoder(header, fpp, model)
     t = np.arange(n)[:, None] / 25.0
     params = 0.01 * np.sin(2 * np.pi * 1.3 * t + np.arange(len(names)))
@@ -28,17 +31,6 @@ def clear_packets(names, fpp=2, n=60, model=b"") -> list[bytes]:
     for p in params:
         packets += enc.frame(p, True)
     return packets + enc.end()
-
-
-def test_version_6_packets_are_refused_for_sealing():
-    """A sealed byte stream reads each inner packet's length, which version 6's frames packets lack."""
-    header = Header(25.0, LAYOUTS["paper"], steps_for(LAYOUTS["paper"]), "ab" * 32)
-    enc = PacketEncoder(header, 2)
-    packets = enc.header() + [p for x in np.zeros((30, 16)) for p in enc.frame(x, True)]
-    sealer = SecureSealer(KEY)
-    for packet in (packets[0], packets[-1]):  # the header, a delta
-        with pytest.raises(BitstreamError, match="version 5"):
-            sealer.seal(packet)
 
 
 def events_of(decoder, packets) -> list:
@@ -55,7 +47,7 @@ def frames(events) -> list[tuple[int, bytes, bool]]:
 def test_round_trip_on_every_layout_datagrams_and_bytes(layout, fpp, tag_bits):
     packets = clear_packets(LAYOUTS[layout], fpp, model=MODEL)
     sealed = seal_stream(SecureSealer(KEY, tag_bits), packets)
-    assert [len(s) for s in sealed[1:]] == [len(p) + 2 + tag_bits // 8 for p in packets]
+    assert [len(s) for s in sealed[1:]] == [len(p) + 2 + len(varint(len(p))) + tag_bits // 8 for p in packets]
     assert not any(p in s for p, s in zip(packets, sealed[1:]))  # nothing in clear
     expected = events_of(DatagramDecoder(), packets)
     dec = SecureDatagramDecoder(KEY)
@@ -195,3 +187,59 @@ def test_an_old_preamble_replayed_first_cannot_lock_the_receiver_out():
     stream = SecureStreamDecoder(KEY)
     got = stream.feed(frame_bytes([old[0]] + new, sealed=True)) + stream.close()
     assert frames(got) == frames(events_of(DatagramDecoder(), packets))
+
+
+def test_every_flipped_bit_is_refused_before_the_decoder_sees_the_packet(monkeypatch):
+    """Byte stream: whichever bit flips, the packet holding it never reaches the packet decoder
+    (its envelope's tag is checked first), and every other packet does, unchanged."""
+    packets = clear_packets(LAYOUTS["paper"], 2, n=12)
+    sealed = seal_stream(SecureSealer(KEY), packets)
+    data = frame_bytes(sealed, sealed=True)
+    starts = np.cumsum([0] + [1 + len(s) for s in sealed])  # each sealed packet's sync byte
+    seen: list[bytes] = []
+    inner = PacketDecoder.packet
+    monkeypatch.setattr(PacketDecoder, "packet", lambda self, data: seen.append(bytes(data)) or inner(self, data))
+    for bit in range(8 * starts[1], 8 * len(data)):
+        bad = bytearray(data)
+        bad[bit // 8] ^= 1 << bit % 8
+        hit = int(np.searchsorted(starts, bit // 8, side="right")) - 2  # index in packets
+        seen.clear()
+        dec = SecureStreamDecoder(KEY)
+        try:
+            dec.feed(bytes(bad))
+            dec.close()
+        except BitstreamError:
+            assert hit == 0  # the header's packet: no stream
+        assert seen == packets[:hit] + packets[hit + 1:], bit
+        assert dec.security.auth_failures + dec.stats.skipped_bytes >= 1
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=64), st.integers(0, 10_000), st.integers(0, 8), st.booleans())
+def test_fuzz_sealed_streams_raise_nothing_but_our_errors(junk, position, flips, inside):
+    """Junk and flipped bits in a sealed byte stream, or in the packets before sealing (what a key
+    holder could send): nothing but FdError escapes, and frames stay in order."""
+    packets = clear_packets(LAYOUTS["paper"], 2, n=20)
+    if inside:  # authentic garbage: the packet decoder's own defences
+        clear = bytearray(b"".join(packets[1:]))
+        position %= len(clear)
+        for i in range(flips):
+            clear[(position + 37 * i) % len(clear)] ^= 1 << (i % 8)
+        cuts = sorted({0, len(clear), *(position + 11 * i for i in range(len(junk)) if position + 11 * i < len(clear))})
+        packets = packets[:1] + [bytes(clear[a:b]) for a, b in zip(cuts, cuts[1:])]
+    data = bytearray(frame_bytes(seal_stream(SecureSealer(KEY), packets), sealed=True))
+    if not inside:
+        position %= len(data)
+        for i in range(flips):
+            data[(position + 37 * i) % len(data)] ^= 1 << (i % 8)
+        data[position:position] = junk
+    for dec in (SecureStreamDecoder(KEY), SecureDatagramDecoder(KEY)):
+        try:
+            if isinstance(dec, SecureStreamDecoder):
+                events = dec.feed(bytes(data[:position])) + dec.feed(bytes(data[position:])) + dec.close()
+            else:
+                events = [e for chunk in (data[:position], junk, data[position:]) for e in dec.receive(bytes(chunk))]
+        except FdError:
+            continue
+        seqs = [e.seq for e in events if isinstance(e, Frame)]
+        assert seqs == sorted(set(seqs))

@@ -11,16 +11,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.errors import InputError
 from codec.face_file import decode_face, load_face_file, save_face_file
+from common.errors import InputError
+from common.keys import read_key
 from protocol.secure import SecureSealer
 from protocol.secure_stream import seal_stream
 from protocol.stream import PacketEncoder, frame_bytes
-from common.keys import read_key
 from sender.keygen import main as keygen
 from tests.test_output import parse_y4m
-from tests.test_receiver_tools import (DEADLINE, N, a_face, assert_one_line, finish, header, run_main,
-                                       smooth_tracks, start_listener, stream_packets)
+from tests.test_receiver_tools import (
+    DEADLINE,
+    N,
+    a_face,
+    assert_one_line,
+    finish,
+    header,
+    run_main,
+    smooth_tracks,
+    start_listener,
+    stream_packets,
+)
 
 
 @pytest.fixture
@@ -39,7 +49,7 @@ def test_keygen_writes_a_private_key_and_never_overwrites_one(key_file, capsys):
 
 
 def sealed_file(path, key, n=N) -> Path:
-    sealed = seal_stream(SecureSealer(key), [p for p, _ in stream_packets(smooth_tracks(n), sealed=True)])
+    sealed = seal_stream(SecureSealer(key), [p for p, _ in stream_packets(smooth_tracks(n))])
     path.write_bytes(frame_bytes(sealed, sealed=True))
     return path
 
@@ -78,7 +88,7 @@ def rx_queue(port: int) -> int:
 def test_a_junk_flood_over_udp_leaves_every_real_frame_delivered(tmp_path, key_file):
     rng = np.random.default_rng(7)
     params = smooth_tracks()
-    sealed = seal_stream(SecureSealer(read_key(str(key_file))), [p for p, _ in stream_packets(params, sealed=True)])
+    sealed = seal_stream(SecureSealer(read_key(str(key_file))), [p for p, _ in stream_packets(params)])
     proc, port = start_listener("udp://127.0.0.1:0", tmp_path, "--key", str(key_file))
     junk_sent = 0
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
@@ -111,7 +121,7 @@ def test_a_sealed_file_without_a_key_asks_for_one(tmp_path, capsys):
 
 
 def test_udp_with_a_wrong_key_renders_nothing_and_says_so(tmp_path, key_file):
-    sealed = seal_stream(SecureSealer(os.urandom(32)), [p for p, _ in stream_packets(smooth_tracks(20), sealed=True)])
+    sealed = seal_stream(SecureSealer(os.urandom(32)), [p for p, _ in stream_packets(smooth_tracks(20))])
     proc, port = start_listener("udp://127.0.0.1:0", tmp_path, "--key", str(key_file), "--timeout", "0.5")
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         for packet in sealed[:-1]:  # no end mark: the receiver waits out its timeout
@@ -133,7 +143,7 @@ def test_a_face_file_sealed_at_rest_opens_only_with_its_key(tmp_path, key_file, 
         load_face_file(sealed_path)
     with pytest.raises(InputError, match="another key"):
         load_face_file(sealed_path, os.urandom(32))
-    enc = PacketEncoder(header(ident, sealed=True), 2)
+    enc = PacketEncoder(header(ident), 2)
     packets = enc.header() + [p for x in smooth_tracks(10) for p in enc.frame(x, True)]
     stream = tmp_path / "s.fd"
     stream.write_bytes(frame_bytes(seal_stream(SecureSealer(key), packets + enc.end()), sealed=True))
@@ -143,7 +153,7 @@ def test_a_face_file_sealed_at_rest_opens_only_with_its_key(tmp_path, key_file, 
 
 
 def test_tcp_carries_a_sealed_stream(tmp_path, key_file):
-    sealed = seal_stream(SecureSealer(read_key(str(key_file))), [p for p, _ in stream_packets(smooth_tracks(), sealed=True)])
+    sealed = seal_stream(SecureSealer(read_key(str(key_file))), [p for p, _ in stream_packets(smooth_tracks())])
     proc, port = start_listener("tcp://127.0.0.1:0", tmp_path, "--key", str(key_file))
     with socket.create_connection(("127.0.0.1", port), timeout=DEADLINE) as sock:
         sock.sendall(frame_bytes(sealed, sealed=True))
