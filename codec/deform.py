@@ -23,7 +23,7 @@ import numpy as np
 from codec.face_model import BaseFace
 from codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS
 from codec.mouth import MOUTH_PARAMS, MouthModel, build_mouth
-from codec.regions import FEATURE_NAMES, RegionMap, build_region_map, feature_positions
+from codec.regions import DEFAULT_RULE, FEATURE_NAMES, RegionMap, build_region_map, feature_positions
 from codec.upper_face import GAZE_PARAMS, UPPER_PARAMS, EyeModel, UpperFace, build_upper_face
 
 PAPER_PARAMS: tuple[str, ...] = (
@@ -63,11 +63,14 @@ def rotation_matrix(axis: np.ndarray, theta_deg: float) -> np.ndarray:
 
 
 class Deformer:
-    """Deforms one base face; build once, call deform() per frame."""
+    """Deforms one base face by a rule of codec.regions.RULES ("paper": equations (1) and (2)
+    exactly; "refined", the default: the project's mouth slit and rounded lower lip); build once,
+    call deform() per frame. InputError for an unknown rule."""
 
-    def __init__(self, face: BaseFace) -> None:
+    def __init__(self, face: BaseFace, rule: str = DEFAULT_RULE) -> None:
         self.face = face
-        self.regions: RegionMap = build_region_map(face)
+        self.rule = rule
+        self.regions: RegionMap = build_region_map(face, rule)
         fpos = feature_positions(face)
         col = {n: i for i, n in enumerate(FEATURE_NAMES)}
         f12, f13 = fpos[col["F12"]], fpos[col["F13"]]

@@ -10,19 +10,28 @@ Membership: a vertex belongs to the stretch region whose triangle contains P
 (weights >= -tol). A vertex no triangle covers is a jaw vertex if it lies below
 the plane through O and the hinge axis (the band outside the polyline
 F12-F14-F4-F15-F13: chin and jaw line); otherwise it takes the nearest region
-(largest smallest weight) with its weights clipped to the triangle. Inner-lip
-vertices only take the lip regions on their own side of the mouth slit.
+(largest smallest weight) with its weights clipped to the triangle.
 
-Two departures from the paper, both for the shape of an opening mouth (measured
-in docs/deformation.md):
-- The inner lips never take the slit's thin triangles (F9, F8, F2), (F9, F3, F8):
-  seen from O the lip curve wanders in and out of them, and their weights along
-  it are not monotonic, so an opening lower lip showed a saw of skin teeth.
-- The lower lip's midpoint weight w of F3 is rounded to 1 - (1 - w)^2 (the
-  other two weights scaled to keep the sum 1): linear blending bends the lip at
-  F3 into a V, the rounded one into the U of a real lip. The map w -> 1 - (1 - w)^2
-  depends on w alone, which is the same on both sides of a shared edge, so the
-  motion stays continuous, and F3 itself still moves by exactly V3.
+Two rules (``RULES``), chosen per Deformer and named in the stream header so
+that sender and receiver blend alike:
+
+- "paper": equations (1) and (2) exactly, nothing else; every vertex takes the
+  triangle its projection falls in (the nearest one, clipped, where it falls in
+  none: only fixed-point regions at the forehead corners).
+- "refined" (the default): two departures, both for the shape of an opening
+  mouth (measured in docs/deformation.md):
+  * The inner lips never take the slit's thin triangles (F9, F8, F2), (F9, F3, F8):
+    seen from O the lip curve wanders in and out of them, and their weights along
+    it are not monotonic, so an opening lower lip showed a saw of skin teeth.
+  * The lower lip's body follows F3 more than a linear blend: F3's weight w is
+    rounded to w + w (1 - w) s, where s rises smoothly from 0 on the inner lip
+    (F4's weight 0) to 1 where F4's weight reaches ROUND_SPAN, the other weights
+    scaled to keep the sum 1. A rounding of the inner lip itself (1 - (1 - w)^2,
+    the rule until 2026-11-24) folded the lip corners over when the jaw opened
+    past 20 degrees. The new weight depends on w and F4's weight alone, which
+    agree on both sides of every border a lower-lip region shares (F4's weight is
+    0 on the edge F3-F8 shared with the slit, F3's on the edge F4-F8 shared with
+    the jowl), so the motion stays continuous, and F3 still moves by exactly V3.
 """
 
 from __future__ import annotations
@@ -32,12 +41,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from codec.face_model import BaseFace
+from common.errors import InputError
 
 FEATURE_NAMES: tuple[str, ...] = tuple(f"F{i}" for i in range(1, 16))
 COVER_TOL = 1e-9
-#: Feature points whose blend weight is rounded (module docstring). Rounding F2 as well was
-#: measured too: no better fit of real upper lips, so the upper lip keeps the paper's blend.
-ROUNDED = ("F3",)
+#: Deformation rules (module docstring); the stream header names the one the sender fitted with.
+RULES = ("paper", "refined")
+DEFAULT_RULE = "refined"
+#: F4's weight at which the refined rule rounds F3's weight fully (module docstring): with 0.2 the
+#: dev clips' fit is as close as with the earlier rounding and a jaw opened to 30 degrees folds no
+#: triangle; smaller spans fold more often once the sent vectors join in, larger ones fit less well.
+ROUND_SPAN = 0.2
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,7 +63,8 @@ class RegionMap:
     vectors F1..F15 for stretch vertex i (rows of jaw vertices are 0);
     triangles (r, 3) int feature indices (0 = F1) of the stretch regions;
     origin (3,) the projection centre O; covered (n,) bool, False where the
-    vertex fell outside every triangle and took a neighbour's clipped weights.
+    vertex fell outside every triangle and took a neighbour's clipped weights;
+    rule: the rule (RULES) the weights follow.
     """
 
     names: tuple[str, ...]
@@ -59,6 +74,7 @@ class RegionMap:
     triangles: np.ndarray
     origin: np.ndarray
     covered: np.ndarray
+    rule: str
 
 
 def feature_positions(face: BaseFace) -> np.ndarray:
@@ -89,8 +105,16 @@ def project_weights(points: np.ndarray, tri: np.ndarray, origin: np.ndarray) -> 
     return w
 
 
-def build_region_map(face: BaseFace) -> RegionMap:
-    """Assign every vertex of face to a stretch or jaw region (see module docstring)."""
+def check_rule(rule: str) -> str:
+    """``rule`` if it is one of RULES; InputError otherwise."""
+    if rule not in RULES:
+        raise InputError(f"unknown deformation rule {rule!r}: choose one of {', '.join(RULES)}")
+    return rule
+
+
+def build_region_map(face: BaseFace, rule: str = DEFAULT_RULE) -> RegionMap:
+    """Assign every vertex of face to a stretch or jaw region by ``rule`` (see module docstring)."""
+    check_rule(rule)
     meta = face.meta
     fpos = feature_positions(face)
     index = {n: i for i, n in enumerate(FEATURE_NAMES)}
@@ -103,7 +127,8 @@ def build_region_map(face: BaseFace) -> RegionMap:
     all_w = np.stack([project_weights(x, fpos[t], origin) for t in triangles])  # (r, n, 3)
     min_w = np.nan_to_num(all_w.min(axis=2), nan=-np.inf)  # (r, n)
     inside_any = (min_w >= -COVER_TOL).any(axis=0)
-    _keep_slit(min_w, triangles, meta["loops"], index)
+    if rule == "refined":
+        _keep_slit(min_w, triangles, meta["loops"], index)
     best = min_w.argmax(axis=0)
     covered = min_w[best, np.arange(n)] >= -COVER_TOL
 
@@ -117,23 +142,24 @@ def build_region_map(face: BaseFace) -> RegionMap:
     weights = np.zeros((n, len(FEATURE_NAMES)))
     np.add.at(weights, (np.arange(n)[:, None], triangles[best]), w)
     weights[jaw] = 0.0
-    for name in ROUNDED:
-        _round(weights, index[name])
+    if rule == "refined":
+        round_lower_lip(weights)
 
     names = tuple(name for name, _ in stretch) + tuple(meta["jaw_regions"]["names"])
     region = best.copy()
     region[jaw] = len(stretch) + _jaw_part(x[jaw], origin, fpos[index["F14"]], fpos[index["F15"]])
-    return RegionMap(names, region, jaw, weights, triangles, origin, covered)
+    return RegionMap(names, region, jaw, weights, triangles, origin, covered, rule)
 
 
-def _round(weights: np.ndarray, column: int) -> None:
-    """Round (in place) one feature point's weights w to 1 - (1 - w)^2, scaling the row's others by
-    (1 - new) / (1 - w) so each row still sums to 1."""
-    w = weights[:, column].copy()
-    rounded = 1.0 - (1.0 - w) ** 2
+def round_lower_lip(weights: np.ndarray) -> None:
+    """The refined rule's rounding (module docstring), in place, on (k, 15) rows of blend weights."""
+    f3, f4 = FEATURE_NAMES.index("F3"), FEATURE_NAMES.index("F4")
+    w = weights[:, f3].copy()
+    t = np.minimum(weights[:, f4] / ROUND_SPAN, 1.0)
+    rounded = w + w * (1.0 - w) * t * t * (3.0 - 2.0 * t)
     rest = 1.0 - w
     weights *= np.divide(1.0 - rounded, rest, out=np.zeros_like(w), where=rest > 0)[:, None]
-    weights[:, column] = rounded
+    weights[:, f3] = rounded
 
 
 def _keep_slit(min_w: np.ndarray, triangles: np.ndarray, loops: dict, index: dict) -> None:

@@ -1,7 +1,10 @@
 """Draw docs/presets_rendered.png (the paper's Figs. 6-9, shaded) and docs/expressions.png.
 
-Rendered with codec.render.Renderer through the receiver's perspective camera
-(receiver/face_view.py framing); run from anywhere:
+The presets are drawn by the paper's rule (top row) and, for comparison, by the
+project's refined rule (bottom row, codec/regions.py); the expressions by the
+refined rule, as fd-animate draws them. Rendered with codec.render.Renderer
+through the receiver's perspective camera (receiver/face_view.py framing); run
+from anywhere:
     .venv/bin/python docs/make_preset_renders.py
 """
 
@@ -33,17 +36,18 @@ def label(image: np.ndarray, text: str) -> np.ndarray:
 
 def main() -> None:
     face = load_base_face()
-    deformer = Deformer(face)
     renderer = Renderer(face.faces, size=(SIZE, SIZE), mouth_faces=face.mouth_faces,
                         eye_faces=face.eye_faces, supersample=2)
     camera = portrait_camera(face)
-    presets = [label(renderer.render(deformer.deform(*PRESETS[n]), camera)[0], t) for n, t in PRESET_TITLES.items()]
+    deformers = {rule: Deformer(face, rule) for rule in ("paper", "refined")}
+    rows = [np.hstack([label(renderer.render(d.deform(*PRESETS[n]), camera)[0], f"{t}, {rule}")
+                       for n, t in PRESET_TITLES.items()]) for rule, d in deformers.items()]
     tiles = []
     for name in EXPRESSIONS:
         params = expression_params(name)
-        tiles.append(label(renderer.render(deformer.deform_extended(params), camera)[0], name))
+        tiles.append(label(renderer.render(deformers["refined"].deform_extended(params), camera)[0], name))
     grid = np.vstack([np.hstack(tiles[:4]), np.hstack(tiles[4:])])
-    cv2.imwrite(str(OUT / "presets_rendered.png"), cv2.cvtColor(np.hstack(presets), cv2.COLOR_RGB2BGR))
+    cv2.imwrite(str(OUT / "presets_rendered.png"), cv2.cvtColor(np.vstack(rows), cv2.COLOR_RGB2BGR))
     cv2.imwrite(str(OUT / "expressions.png"), cv2.cvtColor(grid, cv2.COLOR_RGB2BGR))
 
 

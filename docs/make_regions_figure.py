@@ -1,4 +1,5 @@
-"""Draw docs/regions.png (the region map) and docs/presets.png (the paper's examples).
+"""Draw docs/regions.png (the region map), docs/presets.png (the paper's examples, by the paper's
+rule) and docs/lip_rules.png (F3's weight and an opening jaw under each rule).
 
 Orthographic views with cv2 line/polygon drawing only; run from anywhere:
     .venv/bin/python docs/make_regions_figure.py
@@ -93,9 +94,9 @@ def wireframe(
 
 
 def draw_presets(size: int = 360) -> np.ndarray:
-    """Front (top row) and side (bottom row) wireframes: neutral, fig7, fig8, fig9."""
+    """Front (top row) and side (bottom row) wireframes by the paper's rule: neutral, fig7, fig8, fig9."""
     face = load_base_face()
-    d = Deformer(face)
+    d = Deformer(face, "paper")
     cols = []
     for name in ("neutral", "fig7", "fig8", "fig9"):
         params, f3_jaw = PRESETS[name]
@@ -107,9 +108,45 @@ def draw_presets(size: int = 360) -> np.ndarray:
     return np.hstack(cols)
 
 
+def lip_panel(vertices: np.ndarray, face, colour: np.ndarray, size: int) -> np.ndarray:
+    """Front close-up of the lower face: triangles filled by ``colour`` (m, 3) BGR, back to front."""
+    img = np.full((size, size, 3), 255, np.uint8)
+    xy = (vertices[:, :2] - [0.0, -0.25]) * 2.6  # the mouth and chin fill the panel
+    px = to_pixels(xy, size, margin=0.0)
+    for f in np.argsort(vertices[face.faces].mean(axis=1)[:, 2]):
+        cv2.fillConvexPoly(img, px[face.faces[f]], tuple(int(c) for c in colour[f]), cv2.LINE_AA)
+        cv2.polylines(img, [px[face.faces[f]]], True, GREY, 1, cv2.LINE_AA)
+    return img
+
+
+def draw_lip_rules(size: int = 420, theta: float = 25.0) -> np.ndarray:
+    """Per rule (rows): F3's blend weight on the lower face (white 0 to blue 1), and the jaw
+    opened by theta with F3 following it, mouth fill dark, flipped triangles red."""
+    face = load_base_face()
+    f3 = FEATURE_NAMES.index("F3")
+    rows = []
+    for rule in ("paper", "refined"):
+        d = Deformer(face, rule)
+        w = d.regions.weights[face.faces, f3].mean(axis=1)
+        weight = np.stack([255 - 55 * w, 255 - 200 * w, 255 - 200 * w], axis=1)  # BGR
+        base, out = face.vertices, d.deform(np.r_[theta, np.zeros(12)], True)
+        normals = [np.cross(v[face.faces[:, 1]] - v[face.faces[:, 0]], v[face.faces[:, 2]] - v[face.faces[:, 0]])
+                   for v in (base, out)]
+        flipped = np.sum(normals[0] * normals[1], axis=1) <= 0
+        shade = np.where(face.mouth_faces[:, None], 60, 235) * np.ones((1, 3))
+        shade[flipped] = JAW_COLOUR
+        panels = [lip_panel(base, face, weight, size), lip_panel(out, face, shade, size)]
+        cv2.putText(panels[0], f"{rule}: weight of F3", (10, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.7, BLACK, 2, cv2.LINE_AA)
+        cv2.putText(panels[1], f"{rule}: jaw {theta:g} deg, {flipped.sum()} flipped", (10, 28),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.7, BLACK, 2, cv2.LINE_AA)
+        rows.append(np.hstack(panels))
+    return np.vstack(rows)
+
+
 def main() -> None:
     cv2.imwrite(str(OUT / "regions.png"), draw_regions())
     cv2.imwrite(str(OUT / "presets.png"), draw_presets())
+    cv2.imwrite(str(OUT / "lip_rules.png"), draw_lip_rules())
 
 
 if __name__ == "__main__":

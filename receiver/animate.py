@@ -40,6 +40,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--size", type=parse_size, default=(512, 512), metavar="WxH",
                    help="output size in pixels, e.g. 512 (default) or 640x480")
     p.add_argument("--fps", type=float, default=25.0, help="frames per second (default 25)")
+    p.add_argument("--rule", choices=("refined", "paper"), default="refined",
+                   help="deformation rule: refined (default) or paper (the paper's equations exactly)")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary on stderr")
     args = p.parse_args(argv)
     if not 1.0 <= args.fps <= 240.0:
@@ -130,7 +132,7 @@ def _run(args) -> int:
     if args.output == "-" and sys.stdout.isatty():
         raise InputError("refusing to write video to a terminal: use -o FILE.mp4 or pipe it (| ffplay -)")
     face = load_base_face()
-    deformer = Deformer(face)
+    deformer = Deformer(face, args.rule)
     renderer = face_renderer(face, args.size)
     camera = portrait_camera(face)
     started = time.perf_counter()

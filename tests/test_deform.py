@@ -11,12 +11,13 @@ from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
 from codec.deform import PAPER_PARAMS, PRESETS, Deformer
-from common.errors import InputError
 from codec.face_model import content_id, load_base_face
-from codec.regions import FEATURE_NAMES, project_weights
+from codec.regions import FEATURE_NAMES, RULES, project_weights, round_lower_lip
+from common.errors import InputError
 
 FACE = load_base_face()
 DEF = Deformer(FACE)
+DEFS = {rule: Deformer(FACE, rule) for rule in RULES}
 X = FACE.vertices
 FP = FACE.feature_points
 FIXED = [FP[n] for n in ("F1", "F5", "F6", "F7", "F10", "F11", "F12", "F13")]
@@ -37,15 +38,17 @@ def test_units_and_axes():
     assert FACE.mouth_faces.sum() == 18 and FACE.eye_faces.sum() == 28
 
 
-def test_zero_params_identity():
+@pytest.mark.parametrize("rule", RULES)
+def test_zero_params_identity(rule):
     for f3 in (False, True):
-        assert_allclose(DEF.deform(np.zeros(13), f3), X, rtol=0, atol=1e-15)
+        assert_allclose(DEFS[rule].deform(np.zeros(13), f3), X, rtol=0, atol=1e-15)
 
 
-@settings(max_examples=60, deadline=None)
-@given(params_st, st.booleans())
-def test_fixed_points_never_move(params, f3):
-    assert_allclose(DEF.deform(params, f3)[FIXED], X[FIXED], rtol=0, atol=1e-12)
+@pytest.mark.parametrize("rule", RULES)
+@settings(max_examples=40, deadline=None)
+@given(params=params_st, f3=st.booleans())
+def test_fixed_points_never_move(rule, params, f3):
+    assert_allclose(DEFS[rule].deform(params, f3)[FIXED], X[FIXED], rtol=0, atol=1e-12)
 
 
 @settings(max_examples=30, deadline=None)
@@ -62,11 +65,14 @@ def test_free_points_follow_their_vectors(params, f3):
         assert_allclose(out[FP[name]], DEF.rotate_jaw(X[[FP[name]]], params[0])[0], atol=1e-12)
 
 
-@settings(max_examples=40, deadline=None)
-@given(st.floats(-30, 30))
-def test_jaw_regions_are_rigid(theta):
-    out = DEF.deform(np.r_[theta, np.zeros(12)])
-    jaw = np.flatnonzero(DEF.regions.jaw)
+@pytest.mark.parametrize("rule", RULES)
+@settings(max_examples=30, deadline=None)
+@given(theta=st.floats(-30, 30), params=params_st)
+def test_jaw_regions_are_rigid(rule, theta, params):
+    """The jaw moves rigidly whatever the lips do."""
+    deformer = DEFS[rule]
+    out = deformer.deform(np.r_[theta, params[1:]])
+    jaw = np.flatnonzero(deformer.regions.jaw)
     assert len(jaw) > 10
     before = np.linalg.norm(X[jaw, None] - X[None, jaw], axis=2)
     after = np.linalg.norm(out[jaw, None] - out[None, jaw], axis=2)
@@ -98,12 +104,39 @@ def _shared_edges():
             yield i, j, edge
 
 
-@settings(max_examples=25, deadline=None)
-@given(params_st, st.booleans())
-def test_continuity_across_region_borders(params, f3):
-    """Points on the border between two regions (the plane through O and the
-    shared edge) get the same displacement from either region's formula."""
-    vec, rot = DEF.feature_vectors(params, f3)
+def blend(points: np.ndarray, region: int, rule: str) -> np.ndarray:
+    """(k, 15) weights the rule gives points (k, 3) seen in stretch region ``region``: the
+    projection weights of equation (1), then the refined rule's rounding."""
+    tri = DEF.regions.triangles[region]
+    rows = np.zeros((len(points), len(FEATURE_NAMES)))
+    rows[:, tri] = project_weights(points, X[[FP[FEATURE_NAMES[t]] for t in tri]], DEF.regions.origin)
+    if rule == "refined":
+        round_lower_lip(rows)
+    return rows
+
+
+@pytest.mark.parametrize("rule", RULES)
+def test_the_weights_in_use_are_the_rule_applied_to_equation_1(rule):
+    """Every covered vertex off the inner lips (the refined rule's slit moves those) has exactly
+    the weights :func:`blend` gives, so the border tests below test the matrix the deformer uses."""
+    regions = DEFS[rule].regions
+    loops = FACE.meta["loops"]
+    lips = set(loops["inner_lip_upper"]) | set(loops["inner_lip_lower"]) if rule == "refined" else set()
+    checked = 0
+    for i in np.flatnonzero(regions.covered & ~regions.jaw):
+        if i not in lips:
+            assert_allclose(regions.weights[i], blend(X[[i]], regions.region[i], rule)[0], atol=1e-12)
+            checked += 1
+    assert checked > 300
+
+
+@pytest.mark.parametrize("rule", RULES)
+@settings(max_examples=20, deadline=None)
+@given(params=params_st, f3=st.booleans())
+def test_continuity_across_region_borders(rule, params, f3):
+    """Points on the border between two regions (the plane through O and the shared edge) get
+    the same displacement from either region's weights, as the rule computes them."""
+    vec, rot = DEFS[rule].feature_vectors(params, f3)
     fpos = X[[FP[n] for n in FEATURE_NAMES]]
     o = DEF.regions.origin
     t = np.linspace(0.05, 0.95, 7)[:, None]
@@ -113,19 +146,18 @@ def test_continuity_across_region_borders(params, f3):
         on_edge = fpos[a] + t * (fpos[b] - fpos[a])
         scales = np.array([0.97, 1.0, 1.03])[:, None, None]  # along the rays from O
         pts = (o + (on_edge - o) * scales).reshape(-1, 3)
-        moves = []
-        for r in (i, j):
-            tri = DEF.regions.triangles[r]
-            moves.append(project_weights(pts, fpos[tri], o) @ vec[tri])
-        assert_allclose(moves[0], moves[1], atol=1e-12)
+        assert_allclose(blend(pts, i, rule) @ vec, blend(pts, j, rule) @ vec, atol=1e-12)
     # Jaw border: on the boundary edges the blend equals the rigid rotation.
     origin, _ = DEF.hinge_axis
     for a, b in (("F12", "F14"), ("F14", "F4"), ("F4", "F15"), ("F15", "F13")):
         ia, ib = FEATURE_NAMES.index(a), FEATURE_NAMES.index(b)
         on_edge = fpos[ia] + t * (fpos[ib] - fpos[ia])
-        blend = (1 - t) * vec[ia] + t * vec[ib]
+        rows = np.zeros((len(on_edge), len(FEATURE_NAMES)))
+        rows[:, ia], rows[:, ib] = 1 - t[:, 0], t[:, 0]
+        if rule == "refined":
+            round_lower_lip(rows)
         rigid = (on_edge - origin) @ rot.T + origin - on_edge
-        assert_allclose(blend, rigid, atol=1e-12)
+        assert_allclose(rows @ vec, rigid, atol=1e-12)
 
 
 @settings(max_examples=30, deadline=None)
@@ -162,13 +194,19 @@ def test_each_lip_follows_its_midpoint_more_the_nearer_it_is(loop, point):
     assert (np.diff(w[:half + 1]) > 0).all() and (np.diff(w[half:]) < 0).all()
 
 
-def test_the_lower_lip_drops_as_a_curve_not_a_v():
-    """Halfway from midpoint to corner, the lower lip goes more than half of F3's way down."""
-    params = np.zeros(13)
-    params[PAPER_PARAMS.index("v3y")] = -0.04
-    drop = X[LOWER, 1] - DEF.deform(params)[LOWER, 1]
-    for half_way in (178, 402):  # about halfway along the lip, each side
-        assert drop[LOWER.index(half_way)] > 0.6 * 0.04
+def test_the_refined_lower_lip_follows_f3_off_the_inner_lip():
+    """The refined rule rounds F3's weight on the lower lip's body (outer lip midpoint 17, lip
+    between it and the corners) and keeps the paper's blend on the inner lip, where rounding
+    folded the corners over."""
+    f3 = FEATURE_NAMES.index("F3")
+    refined, paper = DEFS["refined"].regions.weights[:, f3], DEFS["paper"].regions.weights[:, f3]
+    body = [17, 314, 84, 405, 181]
+    assert (refined[body] > paper[body] + 0.15).all()
+    inner = DEFS["refined"].regions.weights[LOWER[1:-1]]
+    assert inner[:, FEATURE_NAMES.index("F4")].max() < 0.02  # so the rounding barely acts there:
+    once_more = inner.copy()
+    round_lower_lip(once_more)
+    assert_allclose(once_more[:, f3], inner[:, f3], atol=0.005)
 
 
 def test_fig7_opens_mouth_with_theta():
