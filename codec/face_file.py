@@ -4,13 +4,19 @@ Layout (little-endian)::
 
     "FDFACE" | version (1 byte) | 0 | JSON length (u32) | JSON | vertices <f4 (n, 3)
     | uv <f4 (n, 2) | faces <u2 (m, 3) | motion basis | texture (JPEG or PNG, may be empty)
+    | reference picture (WebP, JPEG or PNG; version 3, may be empty)
 
 The JSON holds the counts (``vertices``, ``faces``, ``texture`` bytes, and
 ``motion``: [moved vertices k, patterns c, what they are over], absent without a basis) and the
 feature points, regions and loops (``meta``, as codec/data/feature_points.json),
 so a file is complete on its own and the Deformer takes it unchanged. The
 motion basis (version 2; codec/motion_basis.py) is the moved vertices' indices
-<u2 (k) then the patterns <f4 (c, k, 3); version 1 files have none. The face
+<u2 (k) then the patterns <f4 (c, k, 3); version 1 files have none. Version 3
+adds the person's whole reference picture (codec/picture.py): ``picture`` in the
+JSON is [bytes, width, height] and ``projection`` the (3, 4) similarity from
+model points to its pixels (x right, y down) and depth; optionally their open
+mouth, ``mouth`` [bytes, width, height] after the picture, with ``mouth_points``
+the pixel positions in it of the mouth opening's vertices. The face
 id is the sha256 of the whole file (``sha256sum face.fdface`` prints it): what
 the stream header names is exactly what the receiver holds, bit for bit.
 
@@ -26,6 +32,7 @@ import hashlib
 import json
 import os
 import struct
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -33,17 +40,31 @@ import numpy as np
 from cryptography.exceptions import InvalidTag
 from cryptography.hazmat.primitives.ciphers.aead import AESGCM
 
-from codec.face_model import N_LANDMARKS, BaseFace, build_face, load_base_face, normalise
+from codec.face_model import (
+    N_LANDMARKS,
+    BaseFace,
+    ReferencePicture,
+    build_face,
+    load_base_face,
+    mouth_vertices,
+    normalise,
+)
 from codec.motion_basis import MAX_COMPONENTS, OVER, MotionBasis
+from codec.picture import Placement
 from common.errors import InputError
 from common.keys import derive
 
 MAGIC = b"FDFACE"
-VERSION = 2
-READS = (1, 2)
+VERSION = 3
+READS = (1, 2, 3)
 MAX_FILE = 16 << 20  # the stream header's limit for an in-band model
 MAX_FACES = 4096
 MAX_TEXTURE_SIDE = 2048
+PICTURE_SIDES = (16, 4096)  # pixels of a reference picture's width and height
+#: The face's height in a reference picture, over the picture's larger side: a face, not a speck or a blow-up.
+FACE_IN_PICTURE = (0.02, 2.0)
+#: How enrolment codes the reference picture (measured on 256x256 crops: docs/picture.md).
+PICTURE_FORMAT, PICTURE_QUALITY = ".webp", 80
 SEALED = b"FDSEAL\x01"
 _PREFIX = struct.Struct("<6sBBI")
 
@@ -53,21 +74,29 @@ def face_id(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90) -> bytes:
-    """A face file's bytes; ``face.texture`` (RGB) goes in as ``texture_format`` (.jpg or .png).
+def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
+                picture_format: str = PICTURE_FORMAT, picture_quality: int = PICTURE_QUALITY) -> bytes:
+    """A face file's bytes; ``face.texture`` (RGB) goes in as ``texture_format`` (.jpg or .png),
+    ``face.picture``'s image as ``picture_format`` (.webp, .jpg or .png).
 
     The same face gives the same bytes (and id); a JPEG texture loaded and
     saved again is re-compressed and so gets a new id.
     """
-    texture = b""
-    if face.texture is not None:
-        params = [cv2.IMWRITE_JPEG_QUALITY, quality] if texture_format == ".jpg" else []
-        ok, buf = cv2.imencode(texture_format, cv2.cvtColor(face.texture, cv2.COLOR_RGB2BGR), params)
-        if not ok:
-            raise InputError(f"cannot encode the face texture as {texture_format}")
-        texture = buf.tobytes()
+    texture = _encode_image(face.texture, texture_format, quality, "texture") if face.texture is not None else b""
     info = {"vertices": len(face.vertices), "faces": len(face.faces), "texture": len(texture),
             "meta": face.meta}
+    picture = b""
+    if face.picture is not None:
+        image = face.picture.image
+        picture = encode_picture(image, picture_format, picture_quality)
+        info["picture"] = [len(picture), image.shape[1], image.shape[0]]
+        info["projection"] = np.asarray(face.picture.projection, dtype=np.float64).tolist()
+        if face.picture.mouth is not None:
+            mouth = face.picture.mouth
+            data = encode_picture(mouth, picture_format, picture_quality)
+            info["mouth"] = [len(data), mouth.shape[1], mouth.shape[0]]
+            info["mouth_points"] = np.asarray(face.picture.mouth_points, dtype=np.float64).tolist()
+            picture += data
     motion = b""
     if face.motion is not None:
         info["motion"] = [len(face.motion.vertices), face.motion.components, face.motion.over]
@@ -78,14 +107,29 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90)
         _PREFIX.pack(MAGIC, VERSION, 0, len(text)), text,
         np.ascontiguousarray(face.vertices, dtype="<f4").tobytes(),
         np.ascontiguousarray(face.uv, dtype="<f4").tobytes(),
-        np.ascontiguousarray(face.faces, dtype="<u2").tobytes(), motion, texture])
+        np.ascontiguousarray(face.faces, dtype="<u2").tobytes(), motion, texture, picture])
+
+
+def encode_picture(rgb: np.ndarray, ext: str = PICTURE_FORMAT, quality: int = PICTURE_QUALITY) -> bytes:
+    """A reference picture's bytes as a face file stores them."""
+    return _encode_image(rgb, ext, quality, "reference picture")
+
+
+def _encode_image(rgb: np.ndarray, ext: str, quality: int, what: str) -> bytes:
+    params = {".jpg": [cv2.IMWRITE_JPEG_QUALITY, quality], ".webp": [cv2.IMWRITE_WEBP_QUALITY, quality]}
+    ok, buf = cv2.imencode(ext, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), params.get(ext, []))
+    if not ok:
+        raise InputError(f"cannot encode the face {what} as {ext}")
+    return buf.tobytes()
 
 
 def personal_face(neutral: np.ndarray, texture: np.ndarray | None = None,
-                  base: BaseFace | None = None, motion: MotionBasis | None = None) -> bytes:
+                  base: BaseFace | None = None, motion: MotionBasis | None = None,
+                  picture: ReferencePicture | None = None) -> bytes:
     """A face file from a person's (468, 3) pose-free neutral landmarks (base-face axes, e.g.
-    ``sender.pose`` output), an optional (h, w, 3) uint8 RGB texture in ``base``'s UV layout
-    and an optional motion basis.
+    ``sender.pose`` output), an optional (h, w, 3) uint8 RGB texture in ``base``'s UV layout,
+    an optional motion basis and an optional reference picture (its projection takes the
+    normalised landmarks, :func:`codec.face_model.normalise`).
 
     The landmarks become the vertices, normalised as the base face is (face
     height 1, bounding box centred), so the receiver's framing fits; topology,
@@ -97,7 +141,8 @@ def personal_face(neutral: np.ndarray, texture: np.ndarray | None = None,
         raise InputError(f"a face needs ({N_LANDMARKS}, 3) finite landmarks, got {neutral.shape}")
     if texture is not None and (texture.ndim != 3 or texture.shape[2] != 3 or texture.dtype != np.uint8):
         raise InputError(f"a face texture must be (h, w, 3) uint8, got {texture.dtype} {texture.shape}")
-    person = build_face(normalise(neutral), base.faces, base.uv, base.meta, "", texture, motion=motion)
+    person = build_face(normalise(neutral), base.faces, base.uv, base.meta, "", texture, motion=motion,
+                        picture=picture)
     return encode_face(person)
 
 
@@ -119,6 +164,10 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
         n, m, n_tex, meta = int(info["vertices"]), int(info["faces"]), int(info["texture"]), info["meta"]
         k, c, over = info.get("motion", (0, 0, "rest"))
         k, c = int(k), int(c)
+        n_pic, pic_w, pic_h = (int(x) for x in info.get("picture", (0, 0, 0)))
+        projection = np.array(info.get("projection", np.zeros((3, 4))), dtype=np.float64)
+        n_mouth, mouth_w, mouth_h = (int(x) for x in info.get("mouth", (0, 0, 0)))
+        mouth_points = np.array(info.get("mouth_points", np.zeros((0, 2))), dtype=np.float64)
     except (ValueError, KeyError, TypeError):
         raise bad("unreadable description") from None
     if n != N_LANDMARKS or not 0 < m <= MAX_FACES or n_tex < 0:
@@ -127,7 +176,11 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
         raise bad(f"motion basis of {c} patterns over {k} vertices")
     pos = _PREFIX.size + n_text
     n_motion = 2 * k + 12 * c * k
-    if len(data) != pos + 20 * n + 6 * m + n_motion + n_tex:
+    if n_pic < 0 or (n_pic and not all(PICTURE_SIDES[0] <= x <= PICTURE_SIDES[1] for x in (pic_w, pic_h))):
+        raise bad(f"reference picture of {pic_w}x{pic_h} pixels")
+    if n_mouth < 0 or (n_mouth and not (n_pic and all(0 < x <= s for x, s in ((mouth_w, pic_w), (mouth_h, pic_h))))):
+        raise bad(f"open mouth of {mouth_w}x{mouth_h} pixels")
+    if len(data) != pos + 20 * n + 6 * m + n_motion + n_tex + n_pic + n_mouth:
         raise bad("its length does not match its description")
     vertices = np.frombuffer(data, "<f4", 3 * n, pos).reshape(n, 3).astype(np.float64)
     uv = np.frombuffer(data, "<f4", 2 * n, pos + 12 * n).reshape(n, 2).astype(np.float64)
@@ -136,8 +189,16 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
             and faces.max() < n):
         raise bad("vertex, texture coordinate or triangle out of range")
     motion = _decode_motion(data, pos + 20 * n + 6 * m, k, c, over, bad) if k else None
-    texture = _decode_texture(data[len(data) - n_tex:], bad) if n_tex else None
-    return build_face(vertices, faces, uv, meta, face_id(data), texture, origin, motion)
+    end = len(data) - n_pic - n_mouth
+    texture = _decode_texture(data[end - n_tex:end], bad) if n_tex else None
+    face = build_face(vertices, faces, uv, meta, face_id(data), texture, origin, motion)
+    if not n_pic:
+        return face
+    picture = _decode_picture(data[end:end + n_pic], (pic_w, pic_h), projection, bad)
+    if n_mouth:
+        picture = replace(picture, mouth=_decode_image(data[end + n_pic:], (mouth_w, mouth_h), "open mouth", bad),
+                          mouth_points=_mouth_points(mouth_points, face, (mouth_w, mouth_h), bad))
+    return replace(face, picture=picture)
 
 
 def _decode_motion(data: bytes, pos: int, k: int, c: int, over: str, bad) -> MotionBasis:
@@ -153,6 +214,36 @@ def _decode_texture(data: bytes, bad) -> np.ndarray:
     if image is None or max(image.shape[:2]) > MAX_TEXTURE_SIDE:
         raise bad("texture is not a JPEG or PNG image up to 2048 pixels")
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def _decode_picture(data: bytes, size: tuple[int, int], projection: np.ndarray, bad) -> ReferencePicture:
+    """The reference picture, refused unless it decodes to its declared size and its projection
+    is a similarity that puts a face of sensible size near the picture."""
+    try:
+        place = Placement.from_matrix(projection)
+    except ValueError as exc:
+        raise bad(str(exc)) from None
+    side = max(size)
+    centre = place.shift * [1.0, -1.0, 1.0]
+    if not (FACE_IN_PICTURE[0] * side <= place.scale <= FACE_IN_PICTURE[1] * side
+            and np.all(np.abs(centre) <= 4 * side)):
+        raise bad("the reference picture's projection puts the face out of the picture")
+    return ReferencePicture(_decode_image(data, size, "reference picture", bad), projection)
+
+
+def _decode_image(data: bytes, size: tuple[int, int], what: str, bad) -> np.ndarray:
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if image is None or image.shape[1::-1] != size:
+        raise bad(f"{what} is not a {size[0]}x{size[1]} WebP, JPEG or PNG image")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def _mouth_points(points: np.ndarray, face: BaseFace, size: tuple[int, int], bad) -> np.ndarray:
+    """The open mouth's (k, 2) vertex positions, refused unless one per mouth vertex and inside it."""
+    if points.shape != (len(mouth_vertices(face)), 2) or not np.all(np.isfinite(points)) \
+            or np.any(points < -1) or np.any(points > np.array(size) + 1):
+        raise bad("open mouth's points do not fit it")
+    return points
 
 
 def _file_key(key: bytes, salt: bytes) -> AESGCM:

@@ -45,7 +45,8 @@ class BaseFace:
     the stream header; meta is the parsed feature_points.json (regions, O);
     texture (h, w, 3) uint8 RGB or None: a person's own skin (codec/face_file.py),
     None for the generic face, which the renderer shades in a plain material;
-    motion: the person's own motion basis (codec/motion_basis.py) or None.
+    motion: the person's own motion basis (codec/motion_basis.py) or None;
+    picture: the person's whole reference picture and where the face sits in it (codec/picture.py), or None.
     """
 
     vertices: np.ndarray
@@ -58,6 +59,25 @@ class BaseFace:
     meta: dict
     texture: np.ndarray | None = None
     motion: MotionBasis | None = None
+    picture: ReferencePicture | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class ReferencePicture:
+    """image (H, W, 3) uint8 RGB: a whole frame of the person; projection (3, 4) float64: homogeneous
+    model points to (pixel x, pixel y down, depth toward the viewer) in it, a similarity; mouth
+    (h, w, 3) uint8 RGB or None: their open mouth, from another frame, and mouth_points (k, 2)
+    float64: where the vertices of the mouth opening (``mouth_vertices``) are in it, in pixels."""
+
+    image: np.ndarray
+    projection: np.ndarray
+    mouth: np.ndarray | None = None
+    mouth_points: np.ndarray | None = None
+
+
+def mouth_vertices(face: BaseFace) -> np.ndarray:
+    """(k,) sorted indices of the vertices of the triangles filling the mouth opening."""
+    return np.unique(face.faces[face.mouth_faces])
 
 
 def content_id(vertices: np.ndarray, faces: np.ndarray, meta: dict) -> str:
@@ -74,7 +94,7 @@ def _read_text(path: Path) -> str:
     try:
         return path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read base face file {path}: {exc.strerror or exc}") from None
+        raise InputError(f"cannot read base face file {path}: {getattr(exc, 'strerror', None) or exc}") from None
 
 
 def _parse_mesh(text: str, path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -124,7 +144,7 @@ def load_base_face(path: str | Path | None = None) -> BaseFace:
 
 def build_face(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, meta: dict, face_id: str,
                texture: np.ndarray | None = None, origin: str = "face model",
-               motion: MotionBasis | None = None) -> BaseFace:
+               motion: MotionBasis | None = None, picture: ReferencePicture | None = None) -> BaseFace:
     """A BaseFace from its parts, the masks derived from ``meta``'s loops; InputError naming
     ``origin`` if the feature points are not F1..F15 landmark indices."""
     try:
@@ -148,4 +168,5 @@ def build_face(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, meta: di
         meta=meta,
         texture=texture,
         motion=motion,
+        picture=picture,
     )

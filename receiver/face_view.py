@@ -1,12 +1,18 @@
-"""Decoded parameters -> pixels: deform the base face, pose the head, render."""
+"""Decoded parameters -> pixels: deform the base face, pose the head, render.
+
+Three looks: "shaded", the paper's Phong-shaded face; "face", the person's
+textured face alone (FaceView); "picture", the person's whole reference
+picture warped by the moving face (PictureView, codec/picture.py).
+"""
 
 import numpy as np
 
 from codec.camera import Camera
-from codec.deform import EXTENDED_PARAMS, Deformer
+from codec.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer
 from codec.face_model import BaseFace
-from codec.render import Renderer
-from common.errors import BitstreamError
+from codec.picture import SceneMesh, frame_placement
+from codec.render import Material, Renderer
+from common.errors import BitstreamError, InputError
 from protocol.stream import Header
 
 FIELD_OF_VIEW = 20.0  # degrees: a portrait lens, little perspective distortion
@@ -22,13 +28,44 @@ def portrait_camera(face: BaseFace) -> Camera:
     return Camera.perspective(FIELD_OF_VIEW, eye=centre + [0, 0, distance], target=centre)
 
 
-def face_renderer(face: BaseFace, size: tuple[int, int]) -> Renderer:
+LOOKS = ("picture", "face", "shaded")
+DEFAULT_SIZE = (512, 512)
+
+
+def default_look(face: BaseFace) -> str:
+    """The most the face allows: its whole picture, else its textured face, else the shaded face."""
+    return "picture" if face.picture is not None else "face" if face.texture is not None else "shaded"
+
+
+def output_size(header: Header, face: BaseFace, look: str) -> tuple[int, int]:
+    """(width, height) by default: the source's (from the header), else for the picture look the
+    reference picture's, else DEFAULT_SIZE."""
+    if header.width and header.height:
+        return header.width, header.height
+    if look == "picture" and face.picture is not None:
+        return face.picture.image.shape[1], face.picture.image.shape[0]
+    return DEFAULT_SIZE
+
+
+def open_view(look: str, header: Header, face: BaseFace, size: tuple[int, int], check_id: bool = True):
+    """The view drawing ``look`` (one of LOOKS) of ``face``; InputError if the face cannot show it."""
+    if look == "picture":
+        if face.picture is None:
+            raise InputError("--look picture needs a face model with a reference picture (fd-enroll "
+                             "without --no-picture)")
+        return PictureView(header, face, size, check_id)
+    if look not in LOOKS:
+        raise InputError(f"unknown look {look!r}: choose from {', '.join(LOOKS)}")
+    return FaceView(header, face, size, check_id, textured=look == "face")
+
+
+def face_renderer(face: BaseFace, size: tuple[int, int], textured: bool = True) -> Renderer:
     """The receiver's look: the default lights and a dark mouth; a personal model (with a
     texture) shows its own eyes from the photo, the plain shaded face gets painted ones."""
-    textured = face.texture is not None
+    textured = textured and face.texture is not None
     return Renderer(face.faces, size=size, mouth_faces=face.mouth_faces,
                     eye_faces=None if textured else face.eye_faces, background=BACKGROUND,
-                    uv=face.uv if textured else None, texture=face.texture)
+                    uv=face.uv if textured else None, texture=face.texture if textured else None)
 
 
 class FaceView:
@@ -37,10 +74,11 @@ class FaceView:
     A layout is any list of names from ``codec.deform.EXTENDED_PARAMS``; the
     parameters a stream leaves out stay at rest. ``check_id=False`` draws a
     face other than the one the stream names (the receiver's fallback when an
-    in-band model was lost).
+    in-band model was lost); ``textured=False`` shades the mesh as the paper does.
     """
 
-    def __init__(self, header: Header, face: BaseFace, size: tuple[int, int], check_id: bool = True) -> None:
+    def __init__(self, header: Header, face: BaseFace, size: tuple[int, int], check_id: bool = True,
+                 textured: bool = True) -> None:
         if check_id and header.face_id != face.content_id:
             raise BitstreamError(f"the stream was made for face model {header.face_id[:12]}, "
                                  f"this receiver holds {face.content_id[:12]} (give the model with --face FILE)")
@@ -49,13 +87,59 @@ class FaceView:
             raise BitstreamError(f"unknown parameter layout: {', '.join(header.names)}")
         self._slots = [EXTENDED_PARAMS.index(n) for n in header.names]
         self._f3_with_jaw = header.f3_with_jaw
-        self._deformer = Deformer(face)
-        self._renderer = face_renderer(face, size)
+        self._deformer = Deformer(face, header.rule)
+        self.size = size
+        self._setup(face, size, textured)
+
+    def _setup(self, face: BaseFace, size: tuple[int, int], textured: bool) -> None:
+        self._renderer = face_renderer(face, size, textured)
         self._camera = portrait_camera(face)
 
-    def render(self, params: np.ndarray) -> np.ndarray:
+    def _full(self, params: np.ndarray) -> np.ndarray:
         full = np.zeros(len(EXTENDED_PARAMS))
         full[self._slots] = params
+        return full
+
+    def render(self, params: np.ndarray) -> np.ndarray:
+        full = self._full(params)
         vertices = self._deformer.deform_extended(full, f3_with_jaw=self._f3_with_jaw)
         irises = self._deformer.iris(full)[0]
         return self._renderer.render(vertices, self._camera, irises)[0]
+
+
+_POSE = [EXTENDED_PARAMS.index(n) for n in POSE_PARAMS]
+
+
+class PictureView(FaceView):
+    """The whole picture: the reference picture, warped by the face deformed with the expression
+    and placed by the head pose relative to the reference (codec/picture.py), at ``size`` (the
+    picture and its projection scaled to it). Unlit: the picture's own light."""
+
+    def _setup(self, face: BaseFace, size: tuple[int, int], textured: bool) -> None:
+        import cv2
+
+        picture = face.picture
+        if picture is None:
+            raise InputError("this face model has no reference picture to draw")
+        height, width = picture.image.shape[:2]
+        self._scene = SceneMesh(face, picture)
+        w, h = size
+        sx, sy = w / width, h / height
+        self._scale = np.array([sx, sy, np.sqrt(sx * sy)])
+        background = picture.image if (w, h) == (width, height) else \
+            cv2.resize(picture.image, (w, h), interpolation=cv2.INTER_AREA if sx * sy < 1 else cv2.INTER_LINEAR)
+        self._renderer = Renderer(self._scene.triangles, size=size, material=Material(ambient=1.0, specular=0.0),
+                                  lights=(), background=background, uv=self._scene.uv, texture=self._scene.texture,
+                                  mouth_faces=self._scene.mouth_faces)
+        # picture axes (x right, y up) to pixels: x, -y; depth far from every vertex
+        reach = 8.0 * max(w, h)
+        self._camera = Camera.orthographic(h, eye=(w / 2, -h / 2, reach), target=(w / 2, -h / 2, 0.0),
+                                           near=1.0, far=2 * reach)
+
+    def render(self, params: np.ndarray) -> np.ndarray:
+        full = self._full(params)
+        pose = full[_POSE].copy()
+        full[_POSE] = 0.0
+        deformed = self._deformer.deform_extended(full, f3_with_jaw=self._f3_with_jaw)
+        frame = frame_placement(self._scene.reference, pose, self._scene.pivot)
+        return self._renderer.render(self._scene.positions(deformed, frame) * self._scale, self._camera)[0]

@@ -11,25 +11,29 @@ from codec.face_file import decode_face
 from codec.face_model import BaseFace, load_base_face
 from common.errors import BitstreamError, InputError
 from protocol.stream import Damage, End, Frame, Header, Model
-from receiver.face_view import FaceView
+from receiver.face_view import FaceView, default_look, open_view, output_size
 
 
 class ReceiveSession:
     """Chooses the face, renders every frame, writes it to the sinks, and keeps statistics.
 
-    open_sinks(fps) -> list of objects with write((H, W, 3) uint8 RGB) and
-    close(), called once the header gives the rate; face: the model the user
+    open_sinks(fps, (width, height)) -> list of objects with write((H, W, 3)
+    uint8 RGB) and close(), called once the header gives the rate and the face
+    is known; size: output (width, height), None for the source's (the header's),
+    else face_view.output_size's; face: the model the user
     gave (``--face``), whose id must be the stream's; without it the model the
-    stream carries, else the generic face. fps: output rate (None: the
+    stream carries, else the generic face; look: one of face_view.LOOKS, None
+    for the most the face allows (face_view.default_look). fps: output rate (None: the
     stream's), met by repeating or dropping frames. Damage is reported through
     ``warn`` and concealed until the next keyframe; frames already written
     survive a broken stream.
     """
 
-    def __init__(self, open_sinks, size: tuple[int, int], face: BaseFace | None = None,
-                 face_name: str = "--face", fps: float | None = None, warn=None) -> None:
+    def __init__(self, open_sinks, size: tuple[int, int] | None, face: BaseFace | None = None,
+                 face_name: str = "--face", fps: float | None = None, warn=None, look: str | None = None) -> None:
         self._open_sinks, self._size, self._given, self._given_name = open_sinks, size, face, face_name
-        self._fps = fps
+        self._fps, self._look, self._out_fps = fps, look, 0.0
+        self.look: str | None = None
         self._warn = warn or (lambda line: print(f"fd-recv: warning: {line}", file=sys.stderr))
         self._sinks: list = []
         self._header: Header | None = None
@@ -81,7 +85,7 @@ class ReceiveSession:
 
     def _start(self, header: Header) -> None:
         self._header = header
-        out = self._fps or header.fps
+        out = self._out_fps = self._fps or header.fps
         self._ratio = Fraction(out).limit_denominator(1001) / Fraction(header.fps).limit_denominator(1001)
         if self._given is not None:
             if header.face_id != self._given.content_id:
@@ -91,7 +95,6 @@ class ReceiveSession:
         elif not header.model_size:
             self._show(load_base_face(), "generic")
         # else: the model follows in-band, before the first frame
-        self._sinks = self._open_sinks(out)
 
     def _use_model(self, data: bytes) -> None:
         face = decode_face(data, "the stream's face model")
@@ -100,9 +103,15 @@ class ReceiveSession:
         self._show(face, "stream")
 
     def _show(self, face: BaseFace, kind: str, check_id: bool = True) -> None:
-        self._view = FaceView(self._header, face, self._size, check_id)
+        look = self._look or default_look(face)
+        if not check_id and face.picture is None and look == "picture":
+            look = "shaded"  # the in-band model was lost, and its picture with it
+        size = self._size or output_size(self._header, face, look)
+        self._view = open_view(look, self._header, face, size, check_id)
         self._view.render(np.zeros(len(self._header.names)))  # compile and warm up before frames arrive
-        self.face_kind, self.face_id = kind, face.content_id
+        self.face_kind, self.face_id, self.look = kind, face.content_id, look
+        if not self._sinks:
+            self._sinks = self._open_sinks(self._out_fps, size)
 
     def _frame(self, frame: Frame, arrived: float) -> None:
         if self._view is None:  # a datagram of the in-band model was lost
@@ -139,7 +148,7 @@ class ReceiveSession:
             "ended": bool(self.source and self.source.decoder.ended),
             "fps": self._header.fps if self._header else None,
             "output_fps": float(self._fps or self._header.fps) if self._header else None,
-            "face": self.face_kind, "face_id": self.face_id,
+            "face": self.face_kind, "face_id": self.face_id, "look": self.look,
             "latency_ms": {"median": round(float(np.median(ms)), 2), "p95": round(float(np.percentile(ms, 95)), 2),
                            "max": round(float(ms.max()), 2)},
             "frames_per_second": round(len(self.decoded) / max(seconds, 1e-9), 1),
@@ -149,7 +158,7 @@ class ReceiveSession:
     def summary(self, seconds: float) -> str:
         s = self.stats(seconds)
         return (f"{s['frames']} frames rendered ({s['concealed']} concealed, {s['damage_reports']} damage reports), "
-                f"{s['written']} written at {s['output_fps']:g} fps, {s['face']} face, latency "
+                f"{s['written']} written at {s['output_fps']:g} fps, {s['face']} face ({s['look']}), latency "
                 f"{s['latency_ms']['median']:.1f} ms median, {s['latency_ms']['max']:.1f} ms max, "
                 f"{s['frames_per_second']:.1f} frames/s" + _security_summary(s["security"]))
 

@@ -4,6 +4,9 @@ Frames are buffered until the rest face is known (the first second with a
 face, or up to the ``neutral`` frame); afterwards every frame comes out as soon
 as it goes in. Smoothing (One Euro) is applied either to the pose-free
 landmarks before the fit or to the parameters after it (``Smoothing.stage``).
+With a face model that has a reference picture, the head pose is measured
+against that picture instead of the rest frame, translation and scale included
+(codec/picture.py), whatever the layout.
 """
 
 from collections.abc import Iterable, Iterator
@@ -11,9 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codec.deform import HEAD_DEPTH, PAPER_PARAMS, POSE_PARAMS, Deformer
+from codec.deform import PAPER_PARAMS, POSE_PARAMS, Deformer
 from codec.face_model import BaseFace
 from codec.mouth import MOUTH_PARAMS
+from codec.picture import VIEW_DISTANCE, Placement, head_pivot, relative_pose
+from codec.regions import DEFAULT_RULE
 from codec.upper_face import UPPER_PARAMS
 from common.errors import InputError, NoFaceError
 from protocol.quantise import VECTOR_STEP, steps_for
@@ -55,8 +60,12 @@ def layout_names(layout: str, face: BaseFace) -> tuple[str, ...]:
     return paper + face.motion.names + POSE_PARAMS[:3]
 
 
-#: How far the receiver's camera is from the face (base-face units), to turn scale changes into depth.
-VIEW_DISTANCE = 3.9
+def picture_names(names: tuple[str, ...], face: BaseFace) -> tuple[str, ...]:
+    """``names`` with the head's translation and scale when ``face`` has a reference picture: the
+    receiver places the head in it."""
+    if face.picture is None or "tx" in names:
+        return names
+    return names + POSE_PARAMS[3:]
 
 
 @dataclass(frozen=True)
@@ -100,23 +109,28 @@ class FaceAnalyser:
     mouth and jaw of codec/mouth.py, head rotation), "personal" (the paper's
     13 when the face's own motion basis refines them, the basis, head rotation)
     or "auto" (``resolve_layout``); calibration_frames: how many frames with
-    a face to choose the rest face from; neutral: a frame index to use instead.
+    a face to choose the rest face from; neutral: a frame index to use instead;
+    rule: the deformation rule (codec.regions.RULES) the receiver will use, as the
+    stream header names it.
     """
 
     def __init__(self, tracker, face: BaseFace, fps: float, layout: str = "auto",
                  calibration_frames: int = 25, neutral: int | None = None,
-                 smoothing: Smoothing = Smoothing()) -> None:
+                 smoothing: Smoothing = Smoothing(), rule: str = DEFAULT_RULE) -> None:
         layout = resolve_layout(layout, face)
         self._tracker = tracker
         self._face = face
         self._base = np.asarray(face.vertices, dtype=np.float64)
-        self.fit = ModelFit(Deformer(face), mouth=layout == "mouth")
+        self.fit = ModelFit(Deformer(face, rule), mouth=layout == "mouth")
         self._stable = list(STABLE_LANDMARKS)
         self._reference = self._base[self._stable]
-        self._pivot = 0.5 * (self._base.min(axis=0) + self._base.max(axis=0)) - [0.0, 0.0, HEAD_DEPTH]
+        self._pivot = head_pivot(self._base)
         self._calibration_frames = max(1, calibration_frames)
         self._neutral = neutral
-        self.names = layout_names(layout, face)
+        self.names = picture_names(layout_names(layout, face), face)
+        self._picture = None if face.picture is None else Placement.from_matrix(face.picture.projection)
+        self._picture_width = 0 if face.picture is None else face.picture.image.shape[1]
+        self._factor = 1.0  # the picture's width over the frames'
         self._upper = layout == "full"
         self._personal = layout == "personal"
         self._paper = self.names[:len(PAPER_PARAMS)] == PAPER_PARAMS
@@ -137,6 +151,8 @@ class FaceAnalyser:
         pending: list[tuple[np.ndarray | None, Pose | None, np.ndarray | None]] = []
         previous = np.zeros(len(self.names))
         for index, frame in enumerate(frames):
+            if self._picture_width:
+                self._factor = self._picture_width / frame.shape[1]
             landmarks = self._tracker.track(frame)
             pose = aligned = None
             if landmarks is not None:
@@ -209,7 +225,11 @@ class FaceAnalyser:
 
     def _head(self, pose: Pose) -> np.ndarray:
         """Head rotation vector (degrees) as the camera sees it and, in the full layout, the
-        translation (base-face units) of the receiver's head pivot since the rest frame."""
+        translation (base-face units) of the receiver's head pivot since the rest frame; with a
+        reference picture, rotation, translation and scale relative to the picture's (frames of
+        another size than the picture's scaled to it)."""
+        if self._picture is not None:
+            return relative_pose(self._picture, pose.placement(self._factor), self._pivot)
         rotation = pose.head_rotation_vector()
         if not self._translate:
             return rotation

@@ -1,8 +1,10 @@
 """fd-enroll: a person's face model from a video of them, as one file to share before a call.
 
 The mesh is the person's own landmarks in a neutral frame with the head pose
-removed, the texture their skin warped into the mesh's UV layout; the receiver
-then draws them instead of the generic face (``fd-recv --face FILE``). When the
+removed, the texture their skin warped into the mesh's UV layout, and the
+whole neutral frame is kept as the reference picture, with where the face sits
+in it: the receiver then draws the whole picture, warped by the moving face
+(codec/picture.py; ``fd-recv --face FILE``). When the
 clip shows them talking, the file also carries their own motion basis
 (sender/motion.py), which ``fd-send --params personal`` sends coefficients of.
 """
@@ -29,6 +31,9 @@ TEXTURE_SIZE = 256  # texels a side: about 20 KB as JPEG, detail for a 512-pixel
 GAP_UNIT, ANGLE_UNIT = 0.05, 10.0
 #: On the dev clips each pattern up to 12 (the most their halves can teach) lowers the error at a given rate.
 MOTION_PATTERNS = 12
+#: The open mouth kept for the receiver: the enrolment window's widest lip gap (over eye distance)
+#: past OPEN_GAP with the head turned under MOUTH_TURN degrees, cropped with MOUTH_MARGIN pixels.
+OPEN_GAP, MOUTH_TURN, MOUTH_MARGIN = 0.08, 15.0, 3
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -58,6 +63,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "they span what the paper's 13 parameters leave over and are sent after them")
     p.add_argument("--motion-seconds", type=float, default=60.0, metavar="S",
                    help="how much of the clip the motion basis learns from (default 60)")
+    p.add_argument("--no-picture", action="store_true",
+                   help="leave out the reference picture (the whole neutral frame, about 10 KB at 256x256): "
+                        "the receiver then draws the face alone")
     p.add_argument("--key", metavar="FILE",
                    help="encrypt the face model at rest with this key (fd-keygen); fd-send and fd-recv open it "
                         "with the same --key")
@@ -94,21 +102,78 @@ def _run(args) -> int:
     index, frame, landmarks, aligned, score = _neutral_frame(source, base, args.frame, args.seconds)
     rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
     texture = texture_from_frame(rgb, landmarks[:, :2], base.uv, base.faces, args.texture_size)
-    data = personal_face(aligned, texture, base)
+    picture = None
+    if not args.no_picture:
+        picture = reference_picture(rgb, landmarks, aligned, base,
+                                    _open_mouth(open_source(args.input), base, args.seconds))
+    data = personal_face(aligned, texture, base, picture=picture)
     motion, note = None, ""
     if args.motion:
         motion, frames = _motion(args, decode_face(data), index)
         note = (f", motion basis of {motion.components} patterns over the {args.motion_over} from {frames} frames"
                 if motion is not None else
                 f", no motion basis ({frames} frames with a face; a pattern needs {FRAMES_PER_PATTERN})")
-        data = personal_face(aligned, texture, base, motion) if motion is not None else data
+        data = personal_face(aligned, texture, base, motion, picture) if motion is not None else data
     ident = save_face_file(data, args.output, key)
     print(ident)
     if not args.quiet:
         print(f"fd-enroll: face model {ident[:12]} from frame {index} (lip gap {score[0]:.3f}, head turned "
-              f"{score[1]:.1f} degrees){note}, {len(data)} bytes in {args.output}"
+              f"{score[1]:.1f} degrees){note}{_picture_note(picture)}, {len(data)} bytes in {args.output}"
               f"{' (encrypted)' if key else ''}", file=sys.stderr)
     return 0
+
+
+def reference_picture(rgb: np.ndarray, landmarks: np.ndarray, aligned: np.ndarray, base, mouth=None):
+    """The whole (H, W, 3) RGB frame as the reference picture, with the projection that puts the
+    face model made from ``aligned`` (``personal_face`` normalises it, in ``base``'s topology) onto
+    its (468, 3) landmarks; ``mouth``: (RGB frame, landmarks) of a frame with the mouth open, or None."""
+    from codec.face_model import ReferencePicture, mouth_vertices, normalise
+    from sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
+
+    stable = list(STABLE_LANDMARKS)
+    pose = fit_pose(image_to_face_axes(landmarks)[stable], normalise(np.asarray(aligned, np.float64))[stable])
+    picture = ReferencePicture(rgb, pose.placement().matrix())
+    if mouth is None:
+        return picture
+    frame, points = mouth[0], mouth[1][mouth_vertices(base), :2].astype(np.float64)
+    (x0, y0), (x1, y1) = np.floor(points.min(axis=0)) - MOUTH_MARGIN, np.ceil(points.max(axis=0)) + MOUTH_MARGIN
+    x0, y0 = int(max(x0, 0)), int(max(y0, 0))
+    x1, y1 = int(min(x1, frame.shape[1])), int(min(y1, frame.shape[0]))
+    return ReferencePicture(rgb, picture.projection, np.ascontiguousarray(frame[y0:y1, x0:x1]), points - [x0, y0])
+
+
+def _open_mouth(source, base, seconds: float):
+    """(RGB frame, (468, 3) landmarks) of the first ``seconds`` after the face appears with the
+    mouth most open (head turned under MOUTH_TURN degrees), or None if it never opens OPEN_GAP."""
+    from sender.calibrate import lip_gap
+    from sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
+    from sender.tracker import FaceTracker
+
+    tracker, stable = FaceTracker(), list(STABLE_LANDMARKS)
+    window, seen, best, best_gap = max(1, round(seconds * source.fps)), 0, None, OPEN_GAP
+    for frame in source.frames():
+        landmarks = tracker.track(frame)
+        if landmarks is None:
+            continue
+        seen += 1
+        pose = fit_pose(image_to_face_axes(landmarks)[stable], base.vertices[stable])
+        gap = float(lip_gap(landmarks))
+        if gap > best_gap and np.linalg.norm(pose.head_rotation_vector()) < MOUTH_TURN:
+            best, best_gap = (cv2.cvtColor(frame, cv2.COLOR_BGR2RGB), landmarks), gap
+        if seen >= window:
+            break
+    return best
+
+
+def _picture_note(picture) -> str:
+    if picture is None:
+        return ", no reference picture"
+    from codec.face_file import encode_picture
+
+    height, width = picture.image.shape[:2]
+    mouth = "no open mouth" if picture.mouth is None else \
+        f"open mouth {len(encode_picture(picture.mouth))} bytes"
+    return f", reference picture {width}x{height} ({len(encode_picture(picture.image))} bytes, {mouth})"
 
 
 def _motion(args, face, neutral: int):

@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from codec.picture import Placement
+
 #: Landmarks that barely move with expression: forehead, nose bridge and tip, eye
 #: corners, temples and upper cheekbones. Jaw-line, lip and lid landmarks stay out.
 STABLE_LANDMARKS = (1, 4, 5, 6, 8, 9, 10, 33, 54, 67, 109, 117, 119, 121, 127, 129, 133, 143, 151,
@@ -36,6 +38,12 @@ class Pose:
 
         rvec, _ = cv2.Rodrigues(np.ascontiguousarray(self.rotation.T))
         return np.degrees(rvec.ravel())
+
+    def placement(self, factor: float = 1.0) -> Placement:
+        """The inverse map, base face to the frame's face axes (codec/picture.py's picture axes), in a
+        frame ``factor`` times as large."""
+        scale = factor / self.scale
+        return Placement(scale, self.rotation.T, -scale * self.rotation.T @ self.translation)
 
 
 def image_to_face_axes(landmarks: np.ndarray) -> np.ndarray:

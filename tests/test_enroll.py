@@ -35,7 +35,34 @@ def test_enrolment_writes_a_personal_textured_model(tmp_path, capsys, choice):
     centre = texture[64:192, 64:192].reshape(-1, 3).astype(float)
     assert centre.std(axis=0).min() > 10  # a face, not a flat fill
     assert 50 < centre.mean() < 230
-    assert out.stat().st_size < 40_000 + 12 * 2_500  # mesh and texture, and 12 patterns of 2.4 KB
+    # mesh and texture, 12 patterns of 2.4 KB, and the reference picture (under 25 KB)
+    assert out.stat().st_size < 40_000 + 12 * 2_500 + 25_000
+
+
+def test_the_reference_picture_is_the_frame_with_the_face_placed_in_it(tmp_path, capsys):
+    from sender.tracker import FaceTracker
+
+    out = tmp_path / "me.fdface"
+    assert main([str(CLIP), "-o", str(out), "--frame", "3", "--motion", "0"]) == 0
+    assert "reference picture 360x288" in capsys.readouterr().err
+    face = load_face_file(out)
+    capture = cv2.VideoCapture(str(CLIP))
+    for _ in range(4):
+        ok, frame = capture.read()
+    landmarks = FaceTracker().track(frame)
+    picture = face.picture.image
+    assert picture.shape == frame.shape
+    assert np.abs(picture.astype(float) - cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)).mean() < 3  # WebP-coded
+    projected = np.column_stack([face.vertices, np.ones(len(face.vertices))]) @ face.picture.projection.T
+    np.testing.assert_allclose(projected[:, :2], landmarks[:, :2], atol=0.05)
+
+
+def test_no_picture_leaves_it_out(tmp_path, capsys):
+    out = tmp_path / "me.fdface"
+    assert main([str(CLIP), "-o", str(out), "--motion", "0", "--no-picture"]) == 0
+    assert "no reference picture" in capsys.readouterr().err
+    face = load_face_file(out)
+    assert face.picture is None and face.texture is not None
 
 
 def test_auto_choice_is_a_closed_mouth_frame(tmp_path, capsys):

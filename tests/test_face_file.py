@@ -1,15 +1,17 @@
 """Face model files: round trip, ids that name the content, and one-line refusals of bad files."""
 
 import hashlib
+import json
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from codec.deform import PAPER_PARAMS, Deformer
-from common.errors import InputError
 from codec.face_file import decode_face, encode_face, load_face_file, personal_face, save_face_file
-from codec.face_model import load_base_face
+from codec.face_model import ReferencePicture, load_base_face, mouth_vertices
+from codec.picture import Placement
+from common.errors import InputError
 
 BASE = load_base_face()
 GENERIC_ID = "29d964b2735ca5b817cf688586b0cdcbe7dae01b01573aa45c8ce855b3d3a966"
@@ -97,3 +99,113 @@ def test_missing_file_and_directory_are_refused(tmp_path):
         load_face_file(tmp_path / "nothing.fdface")
     with pytest.raises(InputError, match="not a file"):
         load_face_file(tmp_path)
+
+
+def a_picture(w=96, h=80):
+    """A textured (h, w, 3) picture and a projection putting the normalised face in its middle."""
+    y, x = np.mgrid[0:h, 0:w]
+    image = np.dstack([x * 2, y * 3, 100 + 50 * np.sin(x / 4.0)]).astype(np.uint8)
+    return ReferencePicture(image, Placement(40.0, np.eye(3), np.array([w / 2, -h / 2, 0.0])).matrix())
+
+
+def test_the_reference_picture_round_trips():
+    neutral, texture = a_person()
+    picture = a_picture()
+    face = decode_face(personal_face(neutral, texture, picture=picture))
+    np.testing.assert_array_equal(face.picture.projection, picture.projection)
+    assert face.picture.image.shape == (80, 96, 3)
+    assert np.abs(face.picture.image.astype(int) - picture.image).mean() < 4  # WebP: close, not exact
+    lossless = decode_face(encode_face(face, picture_format=".png"))
+    np.testing.assert_array_equal(lossless.picture.image, face.picture.image)
+    assert decode_face(personal_face(neutral, texture)).picture is None
+
+
+def test_files_of_version_2_are_still_read():
+    neutral, texture = a_person()
+    data = personal_face(neutral, texture)  # no picture: the version 2 layout
+    old = decode_face(data[:6] + bytes([2]) + data[7:])
+    np.testing.assert_array_equal(old.vertices, decode_face(data).vertices)
+    assert old.picture is None
+
+
+def _with_info(data: bytes, **changes) -> bytes:
+    """The file with its JSON description changed (and its length field kept right)."""
+    n = int.from_bytes(data[8:12], "little")
+    info = json.loads(data[12:12 + n])
+    info.update(changes)
+    text = json.dumps(info).encode()
+    return data[:8] + len(text).to_bytes(4, "little") + text + data[12 + n:]
+
+
+def _projection(scale=40.0, shift=(48.0, -40.0, 0.0), rotation=None):
+    return Placement(scale, np.eye(3) if rotation is None else rotation, np.array(shift)).matrix().tolist()
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"projection": [[float("nan")] * 4] * 3}, "not a finite 3x4"),
+    ({"projection": [[1, 2, 3]]}, "not a finite 3x4"),
+    ({"projection": "up"}, "unreadable description"),
+    ({"projection": _projection(rotation=np.diag([1.0, 2.0, 1.0]))}, "not a rotation and scale"),
+    ({"projection": _projection(scale=0.5)}, "out of the picture"),
+    ({"projection": _projection(scale=1e6)}, "out of the picture"),
+    ({"projection": _projection(shift=(1e5, 0, 0))}, "out of the picture"),
+    ({"picture": [None, 96, 80]}, "unreadable description"),
+    ({"picture": [10, 96, 80]}, "length does not match"),
+    ({"picture": [-1, 96, 80]}, "reference picture of"),
+    ({"picture": "x"}, "unreadable description"),
+    ({"picture": [0, 96, 80, 5]}, "unreadable description"),
+])
+def test_hostile_picture_fields_are_refused_in_one_line(changes, message):
+    neutral, texture = a_person()
+    data = personal_face(neutral, texture, picture=a_picture())
+    with pytest.raises(InputError, match=message) as info:
+        decode_face(_with_info(data, **changes), "me.fdface")
+    assert "\n" not in str(info.value) and str(info.value).startswith("me.fdface: ")
+
+
+@pytest.mark.parametrize("size, message", [((97, 80), "not a 97x80"), ((96, 8), "reference picture of 96x8"),
+                                           ((5000, 80), "reference picture of 5000x80")])
+def test_a_picture_of_another_size_than_declared_is_refused(size, message):
+    neutral, texture = a_person()
+    data = personal_face(neutral, texture, picture=a_picture())
+    n = int.from_bytes(data[8:12], "little")
+    picture_bytes = json.loads(data[12:12 + n])["picture"][0]
+    with pytest.raises(InputError, match=message):
+        decode_face(_with_info(data, picture=[picture_bytes, *size]))
+
+
+def test_a_damaged_picture_is_refused():
+    neutral, texture = a_person()
+    data = personal_face(neutral, texture, picture=a_picture())
+    with pytest.raises(InputError, match="reference picture is not"):
+        decode_face(data.replace(b"RIFF", b"JUNK"))
+
+
+def a_picture_with_a_mouth():
+    mouth = np.full((10, 16, 3), 200, np.uint8)
+    points = np.linspace([1.0, 1.0], [15.0, 9.0], len(mouth_vertices(BASE)))
+    return replace(a_picture(), mouth=mouth, mouth_points=points)
+
+
+def test_the_open_mouth_round_trips():
+    neutral, texture = a_person()
+    picture = a_picture_with_a_mouth()
+    person = replace(decode_face(personal_face(neutral, texture)), picture=picture)
+    face = decode_face(encode_face(person, picture_format=".png"))
+    np.testing.assert_array_equal(face.picture.mouth, picture.mouth)
+    np.testing.assert_allclose(face.picture.mouth_points, picture.mouth_points)
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"mouth_points": [[1.0, 1.0]] * 3}, "open mouth's points do not fit"),
+    ({"mouth_points": [[100.0, 1.0]] * 20}, "open mouth's points do not fit"),
+    ({"mouth_points": [[float("inf"), 1.0]] * 20}, "open mouth's points do not fit"),
+    ({"mouth": [10, 500, 10]}, "open mouth of 500x10"),
+    ({"mouth": [-5, 16, 10]}, "open mouth of 16x10"),
+])
+def test_hostile_open_mouth_fields_are_refused_in_one_line(changes, message):
+    neutral, texture = a_person()
+    data = personal_face(neutral, texture, picture=a_picture_with_a_mouth())
+    with pytest.raises(InputError, match=message) as info:
+        decode_face(_with_info(data, **changes), "me.fdface")
+    assert "\n" not in str(info.value)

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
+from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
 from common.errors import InputError
 from codec.face_file import decode_face, encode_face, load_face_file
 from codec.face_model import load_base_face
@@ -140,7 +140,7 @@ def test_enrol_then_send_the_personal_layout_end_to_end(tmp_path, over):
     assert got.returncode == 0, got.stderr.decode()
     recv = np.load(tmp_path / "recv.npz")
     paper = PAPER_PARAMS if over == "paper" else ()
-    assert tuple(recv["names"]) == paper + BASIS_PARAMS[:4] + ("rx", "ry", "rz")
+    assert tuple(recv["names"]) == paper + BASIS_PARAMS[:4] + POSE_PARAMS  # and where the head is in the picture
     cols = slice(len(paper), len(paper) + 4)
     coeffs = recv["params"][:, cols]
     assert np.abs(coeffs).max() > 0.002  # the basis is used, frame by frame

@@ -1,0 +1,199 @@
+"""The whole picture: the person's reference picture, warped by the moving face mesh.
+
+Geometry lives in *picture axes*: pixels, x right, y up (minus the picture's
+row), z toward the viewer. A :class:`Placement` (a similarity) puts the face
+model there; the reference picture's placement comes with the face file, and
+each frame's is the reference's composed with the head pose the stream sends
+(:func:`relative_pose` at the sender, :func:`frame_placement` at the receiver,
+its inverse). The :class:`SceneMesh` is the face mesh plus rings of vertices
+around its outer boundary, textured by the reference picture itself: the face
+moves fully, the rings less and less outward, the outermost not at all, and
+past it the picture stays exactly as it was.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from codec.deform import HEAD_DEPTH, rotation_matrix
+from codec.face_model import BaseFace, ReferencePicture, mouth_vertices
+
+#: How far the receiver's camera is from the face (base-face units), to turn scale changes into
+#: depth: tz = VIEW_DISTANCE * (1 - 1 / s) for a head s times its reference size.
+VIEW_DISTANCE = 3.9
+#: Rings around the face's outer boundary, as multiples of the boundary's distance from the face
+#: centre in the reference picture; the last one stays put.
+RINGS = (1.2, 1.5, 2.0, 2.8)
+#: How far each ring lies behind the boundary per unit of radius past it, in face heights: a
+#: turned head hides the ring behind it (Z-buffer), never the other way round.
+RING_DEPTH = 0.5
+#: Above the face centre, rings out to this radius move fully with the head (hair); below, the
+#: fall-off starts at the face (neck and shoulders do not turn with it).
+HAIR_START = 1.3
+MOUTH_GAP = 4  # rows between the picture and the open mouth below it in the texture
+_FLIP = np.array([1.0, -1.0, 1.0])  # picture axes <-> (pixel x, pixel y down, depth)
+
+
+def head_pivot(vertices: np.ndarray) -> np.ndarray:
+    """(3,) the point the head turns about: HEAD_DEPTH behind the centre of the face's bounding box."""
+    v = np.asarray(vertices, dtype=np.float64)
+    return 0.5 * (v.min(axis=0) + v.max(axis=0)) - [0.0, 0.0, HEAD_DEPTH]
+
+
+@dataclass(frozen=True)
+class Placement:
+    """``picture = scale * model @ rotation.T + shift``: model space to picture axes."""
+
+    scale: float
+    rotation: np.ndarray  # (3, 3)
+    shift: np.ndarray  # (3,)
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """(n, 3) model points -> (n, 3) picture-axes points."""
+        return self.scale * np.asarray(points, dtype=np.float64) @ self.rotation.T + self.shift
+
+    def matrix(self) -> np.ndarray:
+        """(3, 4) projection of homogeneous model points to (pixel x, pixel y down, depth toward the viewer)."""
+        return _FLIP[:, None] * np.column_stack([self.scale * self.rotation, self.shift])
+
+    @classmethod
+    def from_matrix(cls, matrix: np.ndarray) -> Placement:
+        """The placement whose :meth:`matrix` is ``matrix``; ValueError unless it is a finite similarity."""
+        m = np.asarray(matrix, dtype=np.float64)
+        if m.shape != (3, 4) or not np.all(np.isfinite(m)):
+            raise ValueError("the projection is not a finite 3x4 matrix")
+        linear = _FLIP[:, None] * m[:, :3]
+        scale = float(np.cbrt(np.linalg.det(linear)))
+        if not scale > 0:
+            raise ValueError("the projection is not a rotation and scale")
+        rotation = linear / scale
+        if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4):
+            raise ValueError("the projection is not a rotation and scale")
+        return cls(scale, rotation, _FLIP * m[:, 3])
+
+    def scaled(self, factor: float) -> Placement:
+        """The same placement in a picture ``factor`` times as large."""
+        return Placement(self.scale * factor, self.rotation, self.shift * factor)
+
+
+def relative_pose(reference: Placement, frame: Placement, pivot: np.ndarray) -> np.ndarray:
+    """(6,) rx, ry, rz, tx, ty, tz of ``frame`` relative to ``reference``: the rotation vector
+    (degrees) of frame.rotation @ reference.rotation.T, the image-plane shift of ``pivot`` in face
+    heights of the reference, and tz = VIEW_DISTANCE * (1 - reference.scale / frame.scale)."""
+    rvec, _ = cv2.Rodrigues(np.ascontiguousarray(frame.rotation @ reference.rotation.T))
+    shift = (frame.apply(pivot[None])[0] - reference.apply(pivot[None])[0]) / reference.scale
+    depth = VIEW_DISTANCE * (1.0 - reference.scale / frame.scale)
+    return np.concatenate([np.degrees(rvec.ravel()), shift[:2], [depth]])
+
+
+def frame_placement(reference: Placement, pose: np.ndarray, pivot: np.ndarray) -> Placement:
+    """The placement that :func:`relative_pose` measured as ``pose`` (6,); its inverse up to the
+    pivot's depth, which an orthographic picture does not show."""
+    rx, ry, rz, tx, ty, tz = np.asarray(pose, dtype=np.float64)
+    rvec = np.array([rx, ry, rz])
+    angle = float(np.linalg.norm(rvec))
+    turn = rotation_matrix(rvec / angle, angle) if angle > 0 else np.eye(3)
+    scale = reference.scale / max(1.0 - tz / VIEW_DISTANCE, 0.05)
+    rotation = turn @ reference.rotation
+    at = reference.apply(pivot[None])[0] + reference.scale * np.array([tx, ty, 0.0])
+    return Placement(scale, rotation, at - scale * rotation @ pivot)
+
+
+def outer_loop(faces: np.ndarray) -> np.ndarray:
+    """(L,) vertex indices of the mesh's longest boundary loop (edges of one triangle only), in order."""
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    following: dict[int, list[int]] = {}
+    for a, b in unique[counts == 1].tolist():
+        following.setdefault(a, []).append(b)
+        following.setdefault(b, []).append(a)
+    best: list[int] = []
+    seen: set[int] = set()
+    for start in following:
+        if start in seen:
+            continue
+        loop, previous, at = [start], -1, start
+        while True:
+            seen.add(at)
+            nxt = next((n for n in following[at] if n != previous and n not in loop[1:]), None)
+            if nxt is None or nxt == start:
+                break
+            loop.append(nxt)
+            previous, at = at, nxt
+        if len(loop) > len(best):
+            best = loop
+    return np.array(best, dtype=np.int64)
+
+
+class SceneMesh:
+    """The face mesh and its rings, in one vertex array: face vertices first, then ring after ring,
+    then (with the person's open mouth) copies of the mouth opening's vertices.
+
+    ``triangles``, ``uv`` (v up), ``texture`` (the reference picture, with the open mouth below
+    it when there is one) and ``mouth_faces`` (the renderer's cavity and teeth, when there is
+    not) are what the renderer takes; :meth:`positions` poses every vertex.
+    """
+
+    def __init__(self, face: BaseFace, picture: ReferencePicture, rings: tuple[float, ...] = RINGS) -> None:
+        vertices, faces = np.asarray(face.vertices, dtype=np.float64), face.faces
+        self.reference = reference = Placement.from_matrix(picture.projection)
+        self.pivot = head_pivot(vertices)
+        loop = outer_loop(faces)
+        n, count = len(vertices), len(loop)
+        rest = reference.apply(vertices)
+        centre = reference.apply((0.5 * (vertices.min(axis=0) + vertices.max(axis=0)))[None])[0]
+        edge = rest[loop]
+        radii = np.asarray(rings, dtype=np.float64)
+        ring_rest = np.concatenate([
+            np.column_stack([centre[:2] + r * (edge[:, :2] - centre[:2]),
+                             edge[:, 2] - (r - 1.0) * RING_DEPTH * reference.scale]) for r in radii])
+        self._ring_model = (ring_rest - reference.shift) @ reference.rotation / reference.scale
+        self._ring_rest = ring_rest
+        self._rest, self._edge = vertices, np.tile(loop, len(radii))
+        up = np.tile(np.clip((edge[:, 1] - centre[1]) / np.abs(edge[:, 1] - centre[1]).max(), 0.0, 1.0), len(radii))
+        start = 1.0 + (HAIR_START - 1.0) * up  # above the eyes the hair turns with the head further out
+        t = np.clip((np.repeat(radii, count) - start) / (radii[-1] - start), 0.0, 1.0)
+        self._weight = (1.0 - t * t * (3.0 - 2.0 * t))[:, None]  # smoothstep: 1 .. 0
+        index = np.concatenate([loop, n + np.arange(len(radii) * count)]).reshape(len(radii) + 1, count)
+        inner, outer = index[:-1], index[1:]
+        inner_next, outer_next = np.roll(inner, -1, axis=1), np.roll(outer, -1, axis=1)
+        strips = np.concatenate([np.stack([inner, inner_next, outer_next], -1).reshape(-1, 3),
+                                 np.stack([inner, outer_next, outer], -1).reshape(-1, 3)])
+        pixels = (np.concatenate([rest, ring_rest]) * _FLIP)[:, :2]
+        face_triangles, mouth = faces.copy(), face.mouth_faces
+        self._mouth = np.zeros(0, np.int64)
+        self.texture = picture.image
+        # the open mouth goes below the picture in one texture, the picture's edges repeated as far
+        # as the rings reach (the clamp the picture alone would have); not past half a picture side
+        height, width = picture.image.shape[:2]
+        lo = np.maximum(np.ceil(-pixels.min(axis=0)), 0).astype(int) + 2
+        hi = np.maximum(np.ceil(pixels.max(axis=0) - [width, height]), 0).astype(int) + 2
+        mouth_image, mouth_points = picture.mouth, picture.mouth_points
+        if mouth_image is not None and mouth_points is not None and max(*lo, *hi) <= max(width, height) // 2:
+            self._mouth = mouth_vertices(face)
+            copies = np.full(n, -1)
+            copies[self._mouth] = len(pixels) + np.arange(len(self._mouth))
+            face_triangles[mouth] = copies[faces[mouth]]
+            padded = cv2.copyMakeBorder(picture.image, lo[1], hi[1], lo[0], hi[0], cv2.BORDER_REPLICATE)
+            below = padded.shape[0] + MOUTH_GAP
+            atlas = np.zeros((below + mouth_image.shape[0], max(padded.shape[1], mouth_image.shape[1]), 3), np.uint8)
+            atlas[:padded.shape[0], :padded.shape[1]], atlas[below:, :mouth_image.shape[1]] = padded, mouth_image
+            self.texture = atlas
+            pixels = np.concatenate([pixels + lo, mouth_points + [0.0, below]])
+            mouth = np.zeros(len(faces), bool)
+        height, width = self.texture.shape[:2]
+        self.triangles = np.concatenate([face_triangles, strips]).astype(np.int32)
+        self.mouth_faces = np.concatenate([mouth, np.zeros(len(strips), bool)])
+        self.uv = np.column_stack([pixels[:, 0] / width, 1.0 - pixels[:, 1] / height])
+
+    def positions(self, deformed: np.ndarray, frame: Placement) -> np.ndarray:
+        """(vertices, 3) picture-axes positions: the deformed (pose-free) face placed by ``frame``;
+        each ring vertex moved as its boundary vertex is (with the deformation: the neck stretches
+        with an opening jaw instead of tearing from it), times the ring's weight."""
+        face = frame.apply(deformed)
+        moved = self._ring_model + (deformed[self._edge] - self._rest[self._edge])
+        rings = self._ring_rest + self._weight * (frame.apply(moved) - self._ring_rest)
+        return np.concatenate([face, rings, face[self._mouth]])

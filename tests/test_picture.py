@@ -1,0 +1,312 @@
+"""The whole picture: placement maths, the scene mesh, the views, and a synthetic scene through
+enrol, send and receive."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from codec.camera import Camera
+from codec.deform import EXTENDED_PARAMS, Deformer
+from codec.face_file import decode_face, encode_face, load_face_file, save_face_file
+from codec.face_model import ReferencePicture, load_base_face, mouth_vertices
+from codec.picture import RINGS, Placement, SceneMesh, frame_placement, head_pivot, outer_loop, relative_pose
+from codec.render import Renderer
+from codec.texture import texture_from_frame
+from common.errors import InputError
+from protocol.stream import Header, steps_for
+from receiver.face_view import FaceView, PictureView, default_look, open_view
+from sender.tracker import FaceTracker
+
+ROOT = Path(__file__).resolve().parents[1]
+GRID = ROOT / "samples" / "grid_bbaf2n.mpg"
+BASE = load_base_face()
+NAMES = ("theta", "rx", "ry", "rz", "tx", "ty", "tz")
+
+
+def rotation(rng) -> np.ndarray:
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    return q * np.sign(np.linalg.det(q))
+
+
+def test_relative_pose_and_frame_placement_are_inverse():
+    rng = np.random.default_rng(1)
+    pivot = head_pivot(BASE.vertices)
+    for _ in range(20):
+        ref = Placement(rng.uniform(50, 200), rotation(rng), rng.uniform(-100, 100, 3))
+        turn = cv2.Rodrigues(rng.uniform(-0.3, 0.3, 3))[0]
+        frame = Placement(ref.scale * rng.uniform(0.8, 1.25), turn @ ref.rotation, rng.uniform(-100, 100, 3))
+        back = frame_placement(ref, relative_pose(ref, frame, pivot), pivot)
+        # the image is the same; only the depth of the whole head is not sent
+        np.testing.assert_allclose(back.apply(BASE.vertices)[:, :2], frame.apply(BASE.vertices)[:, :2], atol=1e-6)
+    np.testing.assert_allclose(relative_pose(ref, ref, pivot), np.zeros(6), atol=1e-9)
+
+
+def test_the_projection_matrix_round_trips_and_only_similarities_are_accepted():
+    rng = np.random.default_rng(2)
+    place = Placement(80.0, rotation(rng), np.array([120.0, -90.0, 4.0]))
+    back = Placement.from_matrix(place.matrix())
+    np.testing.assert_allclose(back.apply(BASE.vertices), place.apply(BASE.vertices), atol=1e-9)
+    # pixel y runs down: a point above the face centre has a smaller row
+    top, chin = place.matrix() @ np.append(BASE.vertices[10], 1), place.matrix() @ np.append(BASE.vertices[152], 1)
+    assert (top[1] < chin[1]) == (place.rotation[1, 1] > 0)
+    mirrored = np.eye(3, 4)  # y down as the pixels are, but z still toward the viewer: a mirror image
+    for bad in (np.full((3, 4), np.nan), place.matrix() * [[1], [2], [1]], mirrored, np.zeros((3, 4))):
+        with pytest.raises(ValueError):
+            Placement.from_matrix(bad)
+
+
+def test_the_rings_go_around_the_face_and_the_outermost_stays_put():
+    loop = outer_loop(BASE.faces)
+    assert len(loop) == 36 and len(set(loop.tolist())) == 36
+    place = Placement(100.0, np.eye(3), np.array([128.0, -128.0, 0.0]))
+    scene = SceneMesh(BASE, ReferencePicture(np.zeros((256, 256, 3), np.uint8), place.matrix()))
+    n, rings = len(BASE.vertices), len(RINGS)
+    assert len(scene.uv) == n + rings * len(loop)
+    moved = frame_placement(place, np.array([0, 0, 0, 0.2, 0.1, 0.0]), scene.pivot)
+    pos = scene.positions(BASE.vertices, moved)
+    rest = scene.positions(BASE.vertices, place)
+    shift = np.linalg.norm(pos[:, :2] - rest[:, :2], axis=1)
+    np.testing.assert_allclose(shift[:n], 100 * np.hypot(0.2, 0.1), rtol=1e-9)  # the face moves whole
+    per_ring = shift[n:].reshape(rings, -1)
+    assert np.all(np.diff(per_ring.mean(axis=1)) < 0)  # less and less outward
+    np.testing.assert_allclose(per_ring[-1], 0.0, atol=1e-9)
+
+
+def a_face_with_a_picture(size=(200, 160), scale=60.0):
+    """The generic face placed in a textured picture (no tracking needed)."""
+    w, h = size
+    y, x = np.mgrid[0:h, 0:w]
+    image = np.dstack([(x * 255 // w), (y * 255 // h), 128 + 100 * np.sin(x / 7.0) * np.cos(y / 9.0)]).astype(np.uint8)
+    place = Placement(scale, np.eye(3), np.array([w / 2, -h / 2, 0.0]))
+    return replace(BASE, picture=ReferencePicture(image, place.matrix()))
+
+
+def header(face, names=NAMES, size=(0, 0)):
+    return Header(25.0, names, steps_for(names), face.content_id, width=size[0], height=size[1])
+
+
+def test_rest_parameters_draw_the_reference_picture():
+    face = a_face_with_a_picture()
+    image = PictureView(header(face), face, (200, 160)).render(np.zeros(len(NAMES)))
+    differs = np.any(image != face.picture.image, axis=2)
+    # exact but for the generic face's parted lips, whose cavity shows (one row of pixels)
+    rows = np.flatnonzero(differs.any(axis=1))
+    assert len(rows) <= 2 and np.all(np.abs(rows - 80 - 0.2 * 60) < 3)
+    assert differs.sum() < 30
+
+
+def test_the_head_moves_in_the_picture_and_the_background_stays_exactly():
+    face = a_face_with_a_picture()
+    view = PictureView(header(face), face, (200, 160))
+    still = view.render(np.zeros(len(NAMES)))
+    moved = view.render(np.array([0, 0, 0, 0, 0.15, 0, 0]))  # a tenth of the face height... and a half
+    changed = np.any(moved != still, axis=2)
+    cols = np.flatnonzero(changed.any(axis=0))
+    assert changed[:, 100].any() and cols.min() > 5 and cols.max() < 194  # the middle moves, the sides do not
+    np.testing.assert_array_equal(moved[:, :5], face.picture.image[:, :5])
+
+
+def test_size_scales_the_picture_and_the_projection():
+    face = a_face_with_a_picture()
+    full = PictureView(header(face), face, (200, 160)).render(np.zeros(len(NAMES)))
+    half = PictureView(header(face), face, (100, 80)).render(np.zeros(len(NAMES)))
+    small = cv2.resize(full, (100, 80), interpolation=cv2.INTER_AREA)
+    assert half.shape == (80, 100, 3)
+    assert np.abs(half.astype(int) - small.astype(int)).mean() < 3
+
+
+def test_an_open_mouth_is_drawn_from_the_person_own_open_mouth():
+    face = a_face_with_a_picture((400, 320), scale=140.0)
+    index = mouth_vertices(face)
+    place = Placement.from_matrix(face.picture.projection)
+    corners = (place.apply(face.vertices[index]) * [1, -1, 1])[:, :2]
+    red = np.zeros((12, 20, 3), np.uint8)
+    red[..., 0] = 250
+    points = (corners - corners.min(axis=0)) / np.ptp(corners, axis=0).clip(1e-6) * [19, 11]
+    with_mouth = replace(face, picture=replace(face.picture, mouth=red, mouth_points=points))
+    names = ("theta",)
+    shut, opened = (PictureView(header(f, names), f, (400, 320)).render(np.array([20.0])) for f in (face, with_mouth))
+    cavity = np.any(shut != opened, axis=2)
+    assert cavity.sum() > 100  # the opening shows the open mouth instead of the dark cavity
+    assert np.all(opened[cavity][:, 0] > 200) and np.all(opened[cavity][:, 1:] < 60)
+    # at rest the picture is its own to the edges (the texture holds more than the picture now)
+    rest = PictureView(header(with_mouth, names), with_mouth, (400, 320)).render(np.array([0.0]))
+    lips = np.any(PictureView(header(face, names), face, (400, 320)).render(np.array([0.0])) != rest, axis=2)
+    np.testing.assert_array_equal(rest[~lips], face.picture.image[~lips])
+    assert lips.sum() < 300  # the generic face's parted lips only
+    # a face so large that its rings reach past half a picture side keeps the cavity (bounded texture)
+    huge = replace(face, picture=replace(with_mouth.picture, image=with_mouth.picture.image[:160, :200],
+                                         projection=Placement(140.0, np.eye(3), np.array([100.0, -80.0, 0])).matrix()))
+    np.testing.assert_array_equal(SceneMesh(huge, huge.picture).texture, huge.picture.image)
+
+
+def test_looks_follow_what_the_face_has():
+    face = a_face_with_a_picture()
+    assert default_look(face) == "picture"
+    assert default_look(replace(face, picture=None, texture=np.zeros((8, 8, 3), np.uint8))) == "face"
+    assert default_look(BASE) == "shaded"
+    with pytest.raises(InputError, match="reference picture"):
+        open_view("picture", header(BASE), BASE, (64, 64))
+    with pytest.raises(InputError, match="unknown look"):
+        open_view("cartoon", header(BASE), BASE, (64, 64))
+
+
+def test_a_face_without_a_picture_draws_as_before():
+    names = ("theta", "rx", "ry", "rz")
+    h = header(BASE, names)
+    params = np.array([10.0, 2.0, 5.0, 0.0])
+    np.testing.assert_array_equal(open_view("shaded", h, BASE, (96, 96)).render(params),
+                                  FaceView(h, BASE, (96, 96)).render(params))
+
+
+# A synthetic scene: a textured background, the generic face textured from a frame of the bundled
+# clip drawn small in it (room for the rings), moved by known poses with the jaw opening.
+SCENE = 320
+FACE_SHARE = 0.3  # the face's height over the picture's
+
+
+def scene_frames():
+    face = BASE
+    ok, frame = cv2.VideoCapture(str(GRID)).read()
+    assert ok
+    landmarks = FaceTracker().track(frame)
+    texture = texture_from_frame(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB), landmarks[:, :2], face.uv, face.faces, 512)
+    y, x = np.mgrid[0:SCENE, 0:SCENE]
+    background = np.dstack([90 + 60 * np.sin(x / 11.0), 110 + 50 * np.cos(y / 13.0),
+                            120 + 40 * np.sin((x + y) / 17.0)]).astype(np.uint8)
+    renderer = Renderer(face.faces, size=(SCENE, SCENE), uv=face.uv, texture=texture, mouth_faces=face.mouth_faces,
+                        background=background)
+    centre = 0.5 * (face.vertices.min(axis=0) + face.vertices.max(axis=0))
+    camera = Camera.orthographic(1.0 / FACE_SHARE, eye=centre + [0, 0, 5.0], target=centre)
+    deformer = Deformer(face)
+    poses = [np.zeros(len(EXTENDED_PARAMS))]
+    for k in range(1, 9):
+        p = np.zeros(len(EXTENDED_PARAMS))
+        p[0] = 6.0 * (k % 3)  # the jaw
+        p[EXTENDED_PARAMS.index("ry")] = 6.0 * np.sin(k)
+        p[EXTENDED_PARAMS.index("rz")] = 3.0 * np.cos(k)
+        p[EXTENDED_PARAMS.index("tx")] = 0.08 * np.sin(0.7 * k)
+        p[EXTENDED_PARAMS.index("ty")] = 0.05 * np.cos(0.9 * k)
+        poses.append(p)
+    frames = [renderer.render(deformer.deform_extended(p), camera)[0] for p in poses]
+    return frames, background
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    """(input RGB frames, the decoded RGB frames, the receiver's face, the stream's path, the face file's
+    path) through fd-enroll, fd-send and fd-recv's sessions."""
+    from receiver.session import ReceiveSession
+    from receiver.transport import open_file
+    from sender.config import SendConfig
+    from sender.enroll import main as enroll
+    from sender.session import SendSession
+
+    tmp = tmp_path_factory.mktemp("scene")
+    frames, _ = scene_frames()
+    for i, rgb in enumerate(frames):
+        cv2.imwrite(str(tmp / f"{i:03d}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    path = tmp / "scene.fdface"
+    assert enroll([str(tmp / "%03d.png"), "-o", str(path), "--frame", "0", "--motion", "0", "-q"]) == 0
+    enrolled = load_face_file(path)
+    # the same picture stored losslessly, so that the still background can be compared bit for bit
+    lossless = replace(enrolled, picture=ReferencePicture(frames[0], enrolled.picture.projection))
+    save_face_file(encode_face(lossless, picture_format=".png"), path)
+    face = load_face_file(path)
+    stream = tmp / "scene.fd"
+    send = SendSession(str(tmp / "%03d.png"), SendConfig(layout="paper", neutral=0, smoothing=0.0,
+                                                          face_file=str(path)))
+    stream.write_bytes(b"".join(send.stream()))
+    decoded, sizes = [], []
+
+    class Sink:
+        def write(self, image):
+            decoded.append(image)
+
+        def close(self):
+            pass
+
+    def open_sinks(fps, size):
+        sizes.append(size)
+        return [Sink()]
+
+    receive = ReceiveSession(open_sinks, None, face)
+    receive.run(open_file(str(stream), None))
+    receive.close()
+    assert receive.look == "picture" and sizes == [(SCENE, SCENE)]
+    return frames, decoded, face, stream, path
+
+
+def test_the_scene_decodes_one_frame_per_input_frame_at_its_size(scene):
+    frames, decoded, *_ = scene
+    assert len(decoded) == len(frames)
+    assert all(d.shape == (SCENE, SCENE, 3) for d in decoded)
+
+
+def test_the_background_past_the_rings_is_bit_exact(scene):
+    frames, decoded, face, *_ = scene
+    outer = SceneMesh(face, replace(face.picture, mouth=None))  # uv in the picture's own pixels
+    ring = (outer.uv[-len(outer_loop(face.faces)):] * [SCENE, -SCENE] + [0, SCENE])  # outermost ring in pixels
+    still = np.ones((SCENE, SCENE), np.uint8)
+    cv2.fillPoly(still, [np.round(ring).astype(np.int32)], 0)
+    still = cv2.erode(still, np.ones((5, 5), np.uint8)).astype(bool)  # a pixel's margin for the edge
+    assert still.mean() > 0.2  # there is a background to compare
+    for src, out in zip(frames, decoded):
+        np.testing.assert_array_equal(out[still], src[still])
+
+
+def test_the_face_follows_within_a_stated_error(scene):
+    """Inside the face, mean absolute error under 12 grey levels in every frame (the synthetic head
+    is lit, so turning it changes its shading, which a warp of the reference does not; and the
+    tracker's landmarks are not exact); a frame drawn without moving the head is far worse."""
+    frames, decoded, face, *_ = scene
+    tracker = FaceTracker()
+    worst_still = 0.0
+    for src, out in zip(frames[1:], decoded[1:]):
+        landmarks = tracker.track(cv2.cvtColor(src, cv2.COLOR_RGB2BGR))
+        mask = np.zeros((SCENE, SCENE), np.uint8)
+        cv2.fillConvexPoly(mask, cv2.convexHull(np.round(landmarks[:, :2]).astype(np.int32)), 1)
+        inside = mask.astype(bool)
+        error = np.abs(out[inside].astype(float) - src[inside]).mean()
+        assert error < 12.0
+        worst_still = max(worst_still, np.abs(frames[0][inside].astype(float) - src[inside]).mean())
+    assert worst_still > 15.0
+
+
+@pytest.mark.parametrize("look", ["picture", "face", "shaded", None])
+def test_every_look_draws_every_frame_at_the_source_size(scene, tmp_path, look):
+    from experiment.clips import read_y4m
+    from receiver.cli import main
+
+    frames, _, _, stream, path = scene
+    out = tmp_path / "out.y4m"
+    chosen = ["--look", look] if look else []
+    assert main([str(stream), "--face", str(path), "-o", str(out), "-q", *chosen]) == 0
+    decoded = read_y4m(out.read_bytes())
+    assert len(decoded) == len(frames) and decoded[0].shape == (SCENE, SCENE, 3)
+    assert main([str(stream), "--face", str(path), "-o", str(out), "-q", "--size", "64x48", *chosen]) == 0
+    assert read_y4m(out.read_bytes())[0].shape == (48, 64, 3)
+
+
+def test_a_bad_look_is_one_line(capsys):
+    from receiver.cli import main
+
+    with pytest.raises(SystemExit) as info:
+        main(["--look", "cartoon"])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and err.count("\n") == 1 and "invalid choice: 'cartoon'" in err
+
+
+def test_the_picture_look_without_a_picture_is_one_line(scene, tmp_path, capsys):
+    from codec.face_file import read_face_bytes
+    from receiver.cli import main
+
+    _, _, face, stream, path = scene
+    bare = tmp_path / "bare.fdface"
+    save_face_file(encode_face(replace(decode_face(read_face_bytes(path)), picture=None)), bare)
+    assert main([str(stream), "--face", str(bare), "-o", str(tmp_path / "x.y4m"), "--look", "picture"]) != 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("fd-recv: ")
