@@ -16,8 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from common.cli import ArgumentParser, parse_size, run_main
+from codec.regions import DEFAULT_RULE, RULES
+from common.cli import ArgumentParser, check_output, number, parse_size, run_main
 
+MAX_SECONDS = 3600  # an hour of animation: a longer script is a mistake, not a wish
 EPILOG = """script example (samples/animation.txt):
   0.0  neutral
   0.5  smile 0.8
@@ -39,14 +41,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="video file (.mp4, .mkv, .mov: H.264), .y4m, or - for Y4M on stdout (default)")
     p.add_argument("--size", type=parse_size, default=(512, 512), metavar="WxH",
                    help="output size in pixels, e.g. 512 (default) or 640x480")
-    p.add_argument("--fps", type=float, default=25.0, help="frames per second (default 25)")
-    p.add_argument("--rule", choices=("refined", "paper"), default="refined",
+    p.add_argument("--fps", type=number(1.0, 240.0), default=25.0, help="frames per second, 1-240 (default 25)")
+    p.add_argument("--rule", choices=RULES, default=DEFAULT_RULE,
                    help="deformation rule: refined (default) or paper (the paper's equations exactly)")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary on stderr")
-    args = p.parse_args(argv)
-    if not 1.0 <= args.fps <= 240.0:
-        p.error(f"--fps {args.fps:g} out of range (1 to 240)")
-    return args
+    return p.parse_args(argv)
 
 
 def main(argv=None) -> int:
@@ -84,6 +83,8 @@ def read_script(path: str) -> tuple[np.ndarray, np.ndarray]:
     times = np.array([t for t, _ in keys])
     if len(keys) < 2 or times[0] < 0 or not np.all(np.diff(times) > 0) or not np.isfinite(times).all():
         raise InputError(f"{path}: needs at least two keys with increasing times from 0")
+    if times[-1] > MAX_SECONDS:
+        raise InputError(f"{path}: the script lasts {times[-1]:g} s, more than fd-animate renders ({MAX_SECONDS} s)")
     return times, np.array([p for _, p in keys])
 
 
@@ -127,6 +128,7 @@ def _run(args) -> int:
     from receiver.face_view import face_renderer, portrait_camera
     from receiver.output import open_writer
 
+    check_output(args.output, "-o", (args.script,))
     times, keys = read_script(args.script)
     count = int(round(times[-1] * args.fps))
     if args.output == "-" and sys.stdout.isatty():
