@@ -90,12 +90,13 @@ def read_script(path: str) -> tuple[np.ndarray, np.ndarray]:
 
 def _line_params(words: list[str], where: str) -> np.ndarray:
     """Sum of 'name [intensity]' pairs of one text key."""
+    from codec.deform import EXTENDED_PARAMS
     from codec.expressions import expression_params
     from common.errors import InputError
 
     if not words:
         raise InputError(f"{where}: a time needs an expression after it")
-    total, k = 0.0, 0
+    total, k = np.zeros(len(EXTENDED_PARAMS)), 0
     while k < len(words):
         intensity = 1.0
         if k + 1 < len(words) and _is_number(words[k + 1]):
