@@ -13,6 +13,9 @@ bytes received since the last accepted frames packet could have carried
 included, are paid for by received bytes (docs/security.md, "Bounds").
 """
 
+from collections import deque
+from collections.abc import Iterable
+
 import numpy as np
 
 from common.errors import BitstreamError
@@ -21,11 +24,14 @@ from protocol.entropy import GroupState
 from protocol.events import Damage, End, Frame, Model, Stats
 from protocol.framing import (
     DELTA,
+    END,
     HEADER,
     KEY,
     MAX_BODY,
     MAX_COUNT,
+    MAX_DATAGRAM,
     MAX_FRAME,
+    MAX_REDUNDANCY,
     MODEL,
     SYNC,
     frame_count,
@@ -36,7 +42,7 @@ from protocol.framing import (
     parse,
     read_varint,
 )
-from protocol.header import Header, parse_header
+from protocol.header import ID_BYTES, Header, parse_header
 from protocol.priors import models_for
 
 MAX_SEEK = 1 << 16  # bytes searched for a header before the input is declared foreign
@@ -46,11 +52,20 @@ class PacketDecoder:
     """Whole packets in, events out: the decoder for datagram transports.
 
     A datagram holds one packet as on a byte stream (:meth:`accept_wire`): a
-    sync byte before each packet but a delta.
+    sync byte before each packet but a delta; a delta's datagram may carry the
+    packets before it again first (:meth:`packets`). ``known``: headers the
+    receiver holds already (an earlier call, a file): a keyframe that names one
+    starts the stream without its header packet. ``late_join``: the first
+    keyframe may start the output wherever it is (a datagram receiver started
+    mid-call); a byte stream always starts at its beginning.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, known: Iterable[Header] = (), late_join: bool = False) -> None:
         self.header: Header | None = None
+        self._known = {h.ident: h for h in known}
+        self._late_join = late_join
+        self._start = 0  # the first frame output
+        self._recent: deque[bytes] = deque(maxlen=MAX_REDUNDANCY + 1)  # the last packets accepted
         self.stats = Stats()
         self.ended = False
         self._group: GroupState | None = None  # None: waiting for a keyframe
@@ -81,13 +96,45 @@ class PacketDecoder:
         return events
 
     def packet(self, data: bytes) -> list:
-        """Events of one whole packet (as on a byte stream) that starts at :attr:`position`; a bad
+        """Events of one datagram's packets (:meth:`packets`) that start at :attr:`position`; a bad
         one is dropped and reported."""
-        data = bytes(data)
-        got = self.accept_wire(data, 0, final=True) if data else None
-        if got is not None and got[0] is not None and got[1] == len(data):
-            return got[0]
-        return self.damage("packet fails its check or cannot be decoded")
+        events = self.packets(data)
+        return self.damage("packet fails its check or cannot be decoded") if events is None else events
+
+    def packets(self, data: bytes) -> list | None:
+        """Events of the packets of one datagram, as on a byte stream; None (nothing changed) if none
+        can be read here. Packets the decoder accepted last are skipped: a frames packet's datagram
+        carries the packets before it again (``protocol.encoder.Datagrams``), so whichever of them
+        were lost are decoded from the copies, in order. A packet that cannot be read here (a copy
+        from before a late join) is passed over to the next sync byte: every packet but a delta
+        starts with one, and a keyframe or framed packet is checked before it is decoded."""
+        data, base = bytes(data), self.position
+        events: list = []
+        pos, accepted, repeated = 0, False, True
+        try:
+            while pos < len(data):
+                repeat = next((len(r) for r in self._recent if data.startswith(r, pos)), 0)
+                if repeat:
+                    pos += repeat
+                    continue
+                self.position = base + pos
+                got = self.accept_wire(data, pos, final=True)
+                if got is None or got[0] is None:  # a copy this decoder cannot use: try the next sync byte
+                    pos, repeated = data.find(SYNC, pos + 1), False
+                    if pos < 0:
+                        break
+                    continue
+                self._recent.append(data[pos:pos + got[1]])
+                accepted = True
+                events += got[0]
+                pos += got[1]
+        finally:
+            self.position = base
+        if not accepted:
+            if not (repeated and data):
+                return None
+            self.stats.duplicates += 1  # a datagram of packets all taken before
+        return events
 
     def accept_wire(self, buf: bytes, pos: int, final: bool) -> tuple[list | None, int] | None:
         """The packet at ``buf[pos]``: (events, bytes used), (None, 0) if it is not a valid packet
@@ -138,7 +185,7 @@ class PacketDecoder:
 
     def _self_delimited(self, buf: bytes, pos: int, final: bool, kind: int) -> tuple[list | None, int] | None:
         """A keyframe packet (from its type byte) or delta packet at ``buf[pos]``."""
-        if self.header is None:
+        if self.header is None and not (kind == KEY and self._known):
             return None, 0
         try:
             got = self._key(buf, pos) if kind == KEY else self._delta(buf, pos)
@@ -159,27 +206,37 @@ class PacketDecoder:
 
     def _key(self, buf: bytes, pos: int) -> tuple[list, bytes] | None:
         count = frame_count(buf[pos])
-        got = read_varint(buf, pos + 1, MAX_FRAME)
+        ident = bytes(buf[pos + 1:pos + 1 + ID_BYTES])
+        got = read_varint(buf, pos + 1 + ID_BYTES, MAX_FRAME)
         if got is None:
             raise Incomplete
+        header = self.header if self.header is not None else self._known.get(ident)
+        if header is None or ident != header.ident:
+            return None  # another stream's, or one whose header has not arrived
         coded, start = got
         dec = Decoder(bytes(buf[start:start + MAX_BODY]), SYNC)
-        group = GroupState(len(self.header.names), self.header.skip_static, models_for(self.header))
+        group = GroupState(len(header.names), header.skip_static, models_for(header))
         decoded = [group.decode_key(dec)] + [group.decode_delta(dec) for _ in range(count - 1)]
         data = self._checked(dec, KEY, bytes(buf[pos:start]), buf, pos, start)
         if data is None:
             return None
+        started = []
+        if self.header is None:
+            self.header, started = header, [header]
         if coded < self._next or self.ended:
             self.stats.duplicates += 1
             return [], data
         size = len(data) + 1  # and the sync byte
+        if self._late_join and self._last is None:  # nothing output yet: start here
+            self._next, self._out = coded, coded * header.divisor
+            self._start = self._out
         if coded - self._next > self.allowance(size):
             return self.damage(f"keyframe {coded} is {coded - self._next} frames ahead, more than the "
                                f"{self.unpaid(size)} bytes since the last frames allow", always=True), data
         events = self.damage("packets lost before a keyframe") if coded > self._next else []
         group.end_packet()
         self._group, self._paid = group, self.position + size
-        return events + self._emit(coded, decoded), data
+        return started + events + self._emit(coded, decoded), data
 
     def _delta(self, buf: bytes, pos: int) -> tuple[list, bytes] | None:
         if self._group is None or self.ended:
@@ -269,9 +326,10 @@ class PacketDecoder:
                                f"{self.unpaid(size)} bytes since the last frames allow no more than "
                                f"{(self._next + self.allowance(size)) * divisor}", always=True)
         complete = self._group is not None and self._next == coded
-        events = self._fill(total, None, complete)
+        events = [] if complete else self.damage("packets lost before the end mark")
+        events += self._fill(total, None, complete)
         self.ended = True
-        return events + [End(total)]
+        return events + [End(total - self._start)]
 
     def _emit(self, coded: int, decoded: list[tuple[list[int], bool]]) -> list:
         events = []
@@ -286,7 +344,8 @@ class PacketDecoder:
 
     def _fill(self, until: int, target: tuple[int, np.ndarray] | None, complete: bool = False) -> list:
         """Frames from the next one up to ``until``: interpolated towards ``target`` if it follows the
-        last decoded frame directly, held after the last frame of a ``complete`` stream, else concealed."""
+        last decoded frame directly, held after the last frame of a ``complete`` stream, else
+        concealed: interpolated towards ``target`` over the frames lost between, else held."""
         events = []
         if self._last is None:
             held, face, start = np.zeros(len(self.header.names)), False, None
@@ -299,6 +358,10 @@ class PacketDecoder:
             elif follows:
                 t = (f - start * self.header.divisor) / self.header.divisor
                 events.append(Frame(f, held + t * (target[1] - held), face, interpolated=True))
+            elif target is not None and start is not None:  # lost frames between two decoded ones
+                t = (f - start * self.header.divisor) / ((target[0] - start) * self.header.divisor)
+                events.append(Frame(f, held + t * (target[1] - held), face, concealed=True))
+                self.stats.concealed += 1
             else:
                 events.append(Frame(f, held, False, concealed=True))
                 self.stats.concealed += 1
@@ -307,7 +370,37 @@ class PacketDecoder:
 
 
 class DatagramDecoder(PacketDecoder):
-    """One packet per datagram: :meth:`receive` each, in arrival order."""
+    """One datagram at a time (:meth:`receive`, in arrival order); may join a stream late.
+
+    A datagram that cannot be read here is dropped and counted in
+    ``stats.skipped_bytes``, not reported as damage: on a socket it may not be
+    ours at all, and a lost packet of ours shows at the next keyframe. What
+    :func:`could_start` refuses costs no decoding work.
+    """
+
+    def __init__(self, known: Iterable[Header] = ()) -> None:
+        super().__init__(known, late_join=True)
+
+    def receive(self, data: bytes) -> list:
+        events = self.packets(data) if self.could_start(data) else None
+        if events is None:
+            self.stats.skipped_bytes += len(data)
+            events = []
+        self.position += len(data)
+        return events
+
+    def could_start(self, data: bytes) -> bool:
+        """Whether ``data`` may start a datagram this decoder can use now, from its first two bytes:
+        before a header only a header (or a keyframe naming a known one), and a code never starts
+        with 0xFE or 0xFF."""
+        if not 0 < len(data) <= MAX_DATAGRAM:
+            return False
+        if data[0] != SYNC:  # a delta, or copies of deltas before a keyframe
+            return self.header is not None and data[0] < SYNC
+        kind = packet_type(data[1]) if len(data) > 1 else -1
+        if self.header is None:
+            return kind == HEADER or (kind == KEY and bool(self._known))
+        return kind in (HEADER, MODEL, KEY, END)
 
 
 class WrapsPacketDecoder:

@@ -20,11 +20,13 @@ from protocol.framing import (
     MAX_BODY,
     MAX_COUNT,
     MAX_FRAME,
+    MAX_REDUNDANCY,
     MODEL,
     SYNC,
     Delta,
     build,
     inner_check,
+    kind_of,
     packet_ends,
     type_byte,
     varint,
@@ -34,6 +36,8 @@ from protocol.priors import models_for
 from protocol.quantise import DEAD_ZONE, hold_or_round
 
 MODEL_CHUNK = 1024
+COPIES = 1  # earlier frames packets a datagram carries again (Datagrams): one lost datagram costs nothing
+HEADER_EAGER, HEADER_EVERY = 10, 30  # keyframes: the header goes again before the first 10, then every 30th
 _MAX_INDEX = 1 << 30  # quantised values beyond this are a caller's bug (NaN, wrong units)
 MAX_DEAD_ZONE = 4.0  # steps: beyond this a coarser quality level costs fewer bits for the same error
 
@@ -124,7 +128,7 @@ class PacketEncoder:
         if self._kind == DELTA:
             head, covered = b"", self._first.to_bytes(4, "big")
         else:
-            head = covered = bytes([type_byte(KEY, self._count)]) + varint(self._first)
+            head = covered = bytes([type_byte(KEY, self._count)]) + self._h.ident + varint(self._first)
         value, bits = inner_check(self._kind, covered, coder.trace)
         for i in range(bits - 1, -1, -1):
             coder.bit(value >> i & 1)
@@ -150,6 +154,58 @@ class StreamEncoder:
 
     def end(self) -> bytes:
         return frame_bytes(self.packets.end())
+
+
+class Datagrams:
+    """A :class:`PacketEncoder`'s packets made ready for a lossy datagram link (UDP), one datagram each.
+
+    Redundancy as in RFC 2198: a frames packet's datagram first carries again
+    the ``copies`` frames packets before it (a decoder skips those it holds,
+    :meth:`protocol.decoder.PacketDecoder.packets`), so up to ``copies`` lost
+    datagrams in a row cost no frame. Late join: the header
+    packet goes again before each of the first ``eager`` keyframes after the
+    first and then before every ``header_every``-th (0: never), so a receiver
+    started mid-call renders from the keyframe after it; the end mark goes
+    twice. With a ``sealer`` every datagram is sealed, and the preamble goes
+    again with the header. Model chunks are not repeated: a late receiver
+    draws the face it has. What each costs is in docs/bitstream.md, "Datagrams".
+    """
+
+    def __init__(self, header_packet: bytes, copies: int = COPIES, header_every: int = HEADER_EVERY,
+                 eager: int = HEADER_EAGER, sealer=None) -> None:
+        if not 0 <= copies <= MAX_REDUNDANCY:
+            raise BitstreamError(f"redundancy must be 0-{MAX_REDUNDANCY} packets, not {copies!r}")
+        self._header, self._copies, self._sealer = header_packet, copies, sealer
+        self._every, self._eager = header_every, eager
+        self._recent: list[bytes] = []  # frames packets since the last keyframe, the newest last
+        self._keys = 0
+
+    def add(self, packets: list[bytes]) -> list[bytes]:
+        """Datagrams for one step of the encoder (its header, a frame's packets or its end)."""
+        out: list[bytes] = []
+        for packet in packets:
+            kind = kind_of(packet)
+            if kind not in (KEY, DELTA, END):
+                out += self._seal([packet])
+                continue
+            if kind == KEY:
+                k, self._keys = self._keys, self._keys + 1
+                if k and (k <= self._eager or (self._every and k % self._every == 0)):
+                    out += self._seal([self._header], preamble=True)
+            copies = self._recent[-self._copies:] if self._copies else []
+            while copies and sum(map(len, copies)) + len(packet) > MAX_BODY:
+                copies = copies[1:]
+            joined = b"".join(copies + [packet])
+            out += self._seal([Delta(joined) if isinstance((copies or [packet])[0], Delta) else joined]
+                              * (2 if kind == END else 1))
+            if kind != END:
+                self._recent = ([] if kind == KEY else self._recent[1 - MAX_REDUNDANCY:]) + [packet]
+        return out
+
+    def _seal(self, datagrams: list[bytes], preamble: bool = False) -> list[bytes]:
+        if self._sealer is None:
+            return datagrams
+        return ([self._sealer.preamble()] if preamble else []) + self._sealer.seal_all(datagrams)
 
 
 def frame_bytes(packets: list[bytes], sealed: bool = False) -> bytes:

@@ -4,8 +4,10 @@ Binary, with every count and length bounded before anything is read or
 allocated: a hostile header is refused, not obeyed.
 """
 
+import hashlib
 import struct
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -27,6 +29,7 @@ MAX_SIZE = 16384  # pixels of the source's width or height
 #: Deformation rules a sender may assume (codec/deform.py), one byte on the wire: the index here.
 RULES = ("refined", "paper")
 _FLAG_F3_WITH_JAW, _FLAG_STATIC, _FLAG_BASIS = 1, 2, 4
+ID_BYTES = 4  # of a header's id, which every keyframe packet carries
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,6 +97,13 @@ class Header:
         if self.basis is None:
             return dequantise(indices, self.steps)
         return (np.asarray(indices, dtype=np.float64) @ self._forward) * self.steps
+
+    @cached_property
+    def ident(self) -> bytes:
+        """The header's id, which every keyframe packet names: the first :data:`ID_BYTES` of the
+        sha256 of its encoding. A receiver that holds the header (from an earlier call or a file)
+        starts at a keyframe without waiting for the header to be sent again."""
+        return hashlib.sha256(encode_header(self)).digest()[:ID_BYTES]
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Header) and encode_header(self) == encode_header(other)

@@ -138,6 +138,7 @@ class SecureOpener:
         self._key, self._key_id, self._window = key, key_id(key), window
         self._keys: _Keys | None = None
         self.tag_bytes = 0
+        self.accepted = b""  #: the genuine preamble taken
         self.stats = SecureStats()
         self._highest = -1
         self._seen = 0  # bit i: index highest - i has been opened
@@ -168,7 +169,7 @@ class SecureOpener:
         if not hmac.compare_digest(keys.tag(b"\0", data[:-tag_bytes], tag_bytes), data[-tag_bytes:]):
             self.stats.auth_failures += 1
             return False
-        self._keys, self.tag_bytes = keys, tag_bytes
+        self._keys, self.tag_bytes, self.accepted = keys, tag_bytes, data
         return True
 
     def _index(self, counter: int) -> int:

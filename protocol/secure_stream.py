@@ -15,8 +15,8 @@ from protocol.secure import MAGIC, WINDOW, SecureOpener, SecureSealer, SecureSta
 
 
 class _Secure(WrapsPacketDecoder):
-    def __init__(self, key: bytes, window: int) -> None:
-        self._core = PacketDecoder()
+    def __init__(self, key: bytes, window: int, known=()) -> None:
+        self._core = PacketDecoder(known, late_join=True)
         self.opener = SecureOpener(key, window)
 
     @property
@@ -28,16 +28,17 @@ class _Secure(WrapsPacketDecoder):
 
 
 class SecureDatagramDecoder(_Secure):
-    """One sealed packet (or the preamble) per datagram, like :class:`protocol.stream.DatagramDecoder`."""
+    """One sealed packet (or the preamble) per datagram, like :class:`protocol.stream.DatagramDecoder`
+    (``known``: the headers it holds)."""
 
-    def __init__(self, key: bytes, window: int = WINDOW) -> None:
-        super().__init__(key, window)
+    def __init__(self, key: bytes, window: int = WINDOW, known=()) -> None:
+        super().__init__(key, window, known)
 
     def receive(self, data: bytes) -> list:
+        events: list = []
         if self.opener.wants_preamble(data):
             self.opener.preamble(data)
-            events = []
-        else:
+        elif data != self.opener.accepted:  # a copy of it is sent again for receivers that join late
             packet = self.opener.open(data)
             events = [] if packet is None else self._core.packet(packet)
         self._core.position += len(data)  # junk too: what pays for frames (protocol/decoder.py)

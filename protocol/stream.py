@@ -7,14 +7,14 @@ specified in docs/bitstream.md.
 """
 
 from protocol.decoder import DatagramDecoder, PacketDecoder, StreamDecoder
-from protocol.encoder import PacketEncoder, StreamEncoder, frame_bytes
+from protocol.encoder import Datagrams, PacketEncoder, StreamEncoder, frame_bytes
 from protocol.events import Damage, End, Frame, Model, Stats
 from protocol.header import VERSION, Header
 from protocol.quantise import DEFAULT_QUALITY, QUALITIES, steps_for
 from protocol.rate import quality_for_bitrate
 
 __all__ = [
-    "DEFAULT_QUALITY", "QUALITIES", "VERSION", "Damage", "DatagramDecoder", "End", "Frame", "Header",
+    "DEFAULT_QUALITY", "QUALITIES", "VERSION", "Damage", "DatagramDecoder", "Datagrams", "End", "Frame", "Header",
     "Model", "PacketDecoder", "PacketEncoder", "Stats", "StreamDecoder", "StreamEncoder", "frame_bytes",
     "quality_for_bitrate", "steps_for",
 ]

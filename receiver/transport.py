@@ -10,19 +10,28 @@ through ``protocol.secure_stream`` instead: only authentic packets count.
 """
 
 import os
+import queue
 import socket
+import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from urllib.parse import urlsplit
 
 from common.errors import BitstreamError, InputError
-from protocol.framing import SYNC
+from protocol.framing import MAX_BODY, SYNC
+from protocol.header import Header, encode_header, parse_header
 from protocol.secure import MAGIC
 from protocol.secure_stream import SecureDatagramDecoder, SecureStreamDecoder
 from protocol.stream import Damage, DatagramDecoder, StreamDecoder
 
 CHUNK = 1 << 16
 DEFAULT_HOST = "127.0.0.1"  # listening on every interface is a choice the user makes by name
+RCVBUF = 4 << 20  # bytes of UDP socket buffer asked for (Linux caps it at net.core.rmem_max)
+QUEUE = 1024  # batches of decoded events waiting for the renderer
+_POLL = 0.1  # seconds: how often the reader looks up from the socket to see whether to stop
+HEADER_SUFFIX = ".fdheader"
+MAX_HEADERS = 1000  # header files read from a --headers directory
 
 
 class ByteSource:
@@ -80,31 +89,108 @@ def open_file(path: str, stdin, key: bytes | None = None) -> ByteSource:
 
 
 class UdpSource:
-    """Datagrams on a bound UDP socket, one packet each, through a :class:`DatagramDecoder`."""
+    """Datagrams on a bound UDP socket through a :class:`DatagramDecoder`, read by a thread of their own.
 
-    def __init__(self, sock: socket.socket, idle: float, key: bytes | None = None) -> None:
-        self.decoder = DatagramDecoder() if key is None else SecureDatagramDecoder(key)
-        self.size = None
+    Reading never waits on rendering: a reader thread takes each datagram off
+    the socket (whose buffer is :data:`RCVBUF`), drops what cannot be ours
+    before any decoding work (``DatagramDecoder.could_start``; with a key,
+    the envelope's length and the replay window before the tag), decodes the
+    rest and queues the events of each (at most :data:`QUEUE` batches; junk
+    queues none, and the reader waits only if rendering falls behind the
+    real stream). ``headers``: where the headers of earlier calls are kept
+    (a receiver restarted mid-call starts at the first keyframe that names one).
+    """
+
+    def __init__(self, sock: socket.socket, idle: float, key: bytes | None = None,
+                 headers: "HeaderStore | None" = None) -> None:
+        known = headers.load() if headers is not None else ()
+        self.decoder = DatagramDecoder(known) if key is None else SecureDatagramDecoder(key, known=known)
+        self._headers = headers
+        self.size, self.consumed = None, 0
         self.timed_out = False
         self._sock, self._idle = sock, idle
         self._sealed = False  # a sealed stream's preamble arrived
+        self._queue: queue.Queue = queue.Queue(QUEUE)
+        self._stop = threading.Event()
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF)
+        except OSError:  # the kernel's limit stands
+            pass
 
     def batches(self) -> Iterator[tuple[list, float]]:
+        reader = threading.Thread(target=self._read, name="fd-recv reader", daemon=True)
+        reader.start()
         try:
-            while not self.decoder.ended:
+            while (item := self._queue.get()) is not None:
+                if isinstance(item, BaseException):
+                    raise item
+                yield item
+        finally:
+            self._stop.set()
+            reader.join()
+            self._sock.close()
+
+    def _read(self) -> None:
+        """The reader thread: datagrams in, batches of events queued, None queued at the end."""
+        try:
+            self._sock.settimeout(_POLL)
+            last = None  # when the last datagram arrived: silence for ``idle`` after it ends the stream
+            while not self.decoder.ended and not self._stop.is_set():
                 try:
                     data = self._sock.recv(65536)
                 except TimeoutError:
-                    self.timed_out = True
-                    return
-                self._sock.settimeout(self._idle)  # the stream has started: from now on, silence ends it
+                    if last is not None and time.monotonic() - last > self._idle:
+                        self.timed_out = True
+                        break
+                    continue
+                arrived, last = time.perf_counter(), time.monotonic()
+                self.consumed += len(data)
                 self._sealed = self._sealed or data.startswith(MAGIC)
-                yield self.decoder.receive(data), time.perf_counter()
-        finally:
-            self._sock.close()
+                events = self.decoder.receive(data)
+                if events:
+                    if self._headers is not None and isinstance(events[0], Header):
+                        self._headers.keep(events[0])
+                    self._put((events, arrived))
+        except Exception as exc:  # raised again in the consumer's thread
+            self._put(exc)
+        self._put(None)
+
+    def _put(self, item) -> None:
+        while not self._stop.is_set():
+            try:
+                self._queue.put(item, timeout=_POLL)
+                return
+            except queue.Full:
+                continue
 
     def no_stream(self) -> str:
         return _no_stream(self.decoder, self._sealed)
+
+
+class HeaderStore:
+    """A directory of stream headers, one file each named by its id (``Header.ident``): a receiver
+    that holds a call's header starts at its first keyframe, without waiting for the header to be
+    sent again (``protocol.encoder.Datagrams``). Files that are not headers are passed over."""
+
+    def __init__(self, directory: str) -> None:
+        self.path = Path(directory)
+        if not self.path.is_dir():
+            raise InputError(f"--headers {directory}: not a directory")
+
+    def load(self) -> list[Header]:
+        headers = []
+        for file in sorted(self.path.glob("*" + HEADER_SUFFIX))[:MAX_HEADERS]:
+            try:
+                headers.append(parse_header(file.read_bytes()[:MAX_BODY]))
+            except (OSError, BitstreamError):
+                continue
+        return headers
+
+    def keep(self, header: Header) -> None:
+        try:
+            (self.path / (header.ident.hex() + HEADER_SUFFIX)).write_bytes(encode_header(header))
+        except OSError:  # a receiver shows the call whether or not it can keep the header
+            pass
 
 
 _SEALED = "the stream is sealed (encrypted): give fd-recv --key FILE"
@@ -132,8 +218,9 @@ def parse_listen(url: str) -> tuple[str, str, int]:
 class Listener:
     """A bound socket for ``--listen``; :meth:`source` waits for the stream (blocking)."""
 
-    def __init__(self, url: str, idle: float, key: bytes | None = None) -> None:
+    def __init__(self, url: str, idle: float, key: bytes | None = None, headers: str | None = None) -> None:
         self.scheme, host, port = parse_listen(url)
+        self._headers = None if headers is None else HeaderStore(headers)
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         kind = socket.SOCK_DGRAM if self.scheme == "udp" else socket.SOCK_STREAM
         self._sock = socket.socket(family, kind)
@@ -153,7 +240,7 @@ class Listener:
     def source(self):
         """UDP: the datagram source at once; TCP: the first connection's bytes, once it is accepted."""
         if self.scheme == "udp":
-            return UdpSource(self._sock, self._idle, self._key)
+            return UdpSource(self._sock, self._idle, self._key, self._headers)
         try:
             conn, _ = self._sock.accept()
         finally:

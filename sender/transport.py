@@ -7,12 +7,14 @@ the UDP sink sends one packet per datagram.
 
 import socket
 import sys
+import time
 from urllib.parse import urlsplit
 
 from common.errors import InputError
 from protocol.stream import frame_bytes
 
-CONNECT_TIMEOUT = 5.0  # seconds
+CONNECT_TIMEOUT = 5.0  # seconds for one attempt to connect
+CONNECT_WAIT = 5.0  # seconds a TCP sender keeps trying while no receiver listens yet
 
 
 class ByteSink:
@@ -61,6 +63,22 @@ def _address(url: str) -> tuple[str, int]:
     return parts.hostname, port
 
 
+def _connect(url: str, address: tuple[str, int]) -> socket.socket:
+    """A TCP connection to ``address``, tried again while it is refused (the receiver may start a
+    moment after the sender) for :data:`CONNECT_WAIT` seconds."""
+    deadline = time.monotonic() + CONNECT_WAIT
+    while True:
+        try:
+            return socket.create_connection(address, timeout=CONNECT_TIMEOUT)
+        except ConnectionRefusedError:
+            if time.monotonic() >= deadline:
+                raise InputError(f"{url}: cannot connect: nobody is listening (tried for {CONNECT_WAIT:g} s; "
+                                 "start fd-recv --listen first)") from None
+            time.sleep(0.2)
+        except OSError as exc:
+            raise InputError(f"{url}: cannot connect ({exc.strerror or exc})") from None
+
+
 def open_sink(output: str, sealed: bool = False):
     """``-`` (stdout), ``udp://HOST:PORT``, ``tcp://HOST:PORT`` or a file path; ``sealed``: the packets are."""
     if output == "-":
@@ -70,11 +88,7 @@ def open_sink(output: str, sealed: bool = False):
     if output.startswith("udp://"):
         return DatagramSink(_address(output))
     if output.startswith("tcp://"):
-        address = _address(output)
-        try:
-            sock = socket.create_connection(address, timeout=CONNECT_TIMEOUT)
-        except OSError as exc:
-            raise InputError(f"{output}: cannot connect ({exc.strerror or exc})") from None
+        sock = _connect(output, _address(output))
         sock.settimeout(None)
         out = sock.makefile("wb")
         sock.close()  # the connection lives on in ``out`` until it is closed

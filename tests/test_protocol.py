@@ -374,11 +374,15 @@ def test_fuzz_datagrams(datagrams):
 
 
 def test_delta_from_another_position_is_rejected():
+    """On a byte stream it is damage; a datagram that cannot be read is dropped and counted, since on a
+    socket it may not be ours (a lost packet of ours shows at the next keyframe)."""
     packets = encode(header(), walk(3, 13))  # header, keyframe 0, deltas 1 and 2, end
+    events, _ = decode(frame_bytes(packets[:2] + [packets[3]]))
+    assert isinstance(events[2], Damage)
     dec = DatagramDecoder()
     for p in packets[:2] + [packets[3]]:
         out = dec.receive(p)
-    assert isinstance(out[0], Damage)
+    assert out == [] and dec.stats.skipped_bytes == len(packets[3]) and not dec.stats.damaged
 
 
 def test_bitrate_choice_is_the_finest_level_that_codes_the_sample_within_the_target():
@@ -495,6 +499,9 @@ def test_hostile_claims_are_damage_in_bounded_memory(name, transport):
     finally:
         tracemalloc.stop()
     assert peak < 2 << 20, f"{peak} bytes"
+    if name == "keyframe 10**9" and transport == "datagrams":  # a receiver joining late starts there
+        assert [f.seq for f in frames(events)] == [10**9] and events[-1] == End(1)
+        return
     damage = [e for e in events if isinstance(e, Damage)]
     assert damage and any("ahead" in e.reason or "end mark claims" in e.reason for e in damage)
     assert len(frames(events)) <= 16 * 30 and not any(isinstance(e, End) and e.frames > 100 for e in events)

@@ -1,0 +1,151 @@
+"""Frames that survive a lossy datagram link, what redundancy and late join cost, and where a junk flood breaks.
+
+``loss``: on fd-send dumps (``python -m sender.cli CLIP -o /dev/null --dump DUMP.npz``), the stream
+as fd-send codes it (2 frames per packet, the first second's basis, a keyframe a second) is cut
+into datagrams by ``protocol.encoder.Datagrams`` with 0-3 earlier packets carried again, frames
+datagrams are dropped at random (0, 1, 5, 10, 20 %) or in bursts of 3, and a ``DatagramDecoder``
+decodes what is left. Prints, per redundancy, the bits per frame (header excluded) and the good
+frames (decoded, not concealed) in % of all, mean over the clips and 5 seeds; depth 0 is the
+stream without copies.
+
+``header``: bits per frame that repeating the header before every Nth keyframe costs, for
+each layout's dump (``DUMP.npz``, ``DUMP.paper.npz``, ``DUMP.full.npz``).
+
+``flood``: a sealed stream over loopback UDP to ``fd-recv --listen`` at 25 packets a second with
+junk datagrams at rising rates; prints the real frames delivered at each rate.
+"""
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from protocol.encoder import Datagrams
+from protocol.stream import DatagramDecoder, Frame, PacketEncoder
+from sender.session import first_basis, read_dump, stream_header
+
+ROOT = Path(__file__).resolve().parents[1]
+LOSSES = (0.0, 0.01, 0.05, 0.10, 0.20)
+
+
+def datagrams(path: Path, copies: int, header_every: int = 0, eager: int = 0) -> tuple[list[bytes], int, int]:
+    """(datagrams, header packet bytes, frames) of fd-send's stream of a dump, the header sent once
+    unless asked."""
+    names, fps, params, found = read_dump(path)
+    header = stream_header(names, fps, "00" * 32, basis=first_basis(names, fps, list(zip(params, found))))
+    enc = PacketEncoder(header, 2)
+    head = enc.header()
+    pack = Datagrams(head[0], copies, header_every, eager)
+    out = pack.add(head)
+    for x, seen in zip(params, found):
+        out += pack.add(enc.frame(x, seen))
+    return out + pack.add(enc.end()), len(head[0]), len(params)
+
+
+def lose(count: int, rate: float, burst: int, rng: np.random.Generator) -> np.ndarray:
+    """(count,) bool: which datagrams are lost; bursts of ``burst`` start at ``rate / burst``."""
+    starts = np.flatnonzero(rng.random(count) < rate / burst)
+    lost = np.zeros(count, bool)
+    for s in starts:
+        lost[s:s + burst] = True
+    return lost
+
+
+def good_frames(stream: list[bytes], lost: np.ndarray, frames: int) -> tuple[int, int]:
+    """(good, delivered) frames of ``stream`` with the frames datagrams ``lost`` dropped (a lost
+    first keyframe starts the receiver at the next: the frames before are not delivered)."""
+    dec = DatagramDecoder()
+    got: list[Frame] = []
+    body = [i for i, d in enumerate(stream) if i and i < len(stream) - 2]  # not the header, not the end
+    dropped = {body[i] for i in np.flatnonzero(lost[:len(body)])}
+    for i, d in enumerate(stream):
+        if i not in dropped:
+            got += [e for e in dec.receive(d) if isinstance(e, Frame)]
+    return sum(not f.concealed for f in got), len(got)
+
+
+def bench_loss(dumps: list[Path], seeds: int) -> None:
+    print("| copies | bits/frame | " + " | ".join(f"{r:.0%} random" for r in LOSSES) + " | bursts of 3 (6 %) |")
+    print("|---|---|" + "---|" * (len(LOSSES) + 1))
+    for copies in range(4):
+        bits: list[float] = []
+        cells: dict[int, list[float]] = {c: [] for c in range(len(LOSSES) + 1)}
+        for path in dumps:
+            stream, head, n = datagrams(path, copies)
+            bits.append(8 * (sum(map(len, stream)) - head) / n)
+            for seed in range(seeds):
+                rng = np.random.default_rng(seed)
+                for c, (rate, burst) in enumerate([(r, 1) for r in LOSSES] + [(0.06, 3)]):
+                    good, _ = good_frames(stream, lose(len(stream), rate, burst, rng), n)
+                    cells[c].append(100 * good / n)
+        print(f"| {copies} | {np.mean(bits):.1f} | " + " | ".join(f"{np.mean(v):.1f}" for v in cells.values()) + " |")
+
+
+def bench_header(dumps: list[Path]) -> None:
+    print("| layout | header bytes | bits/frame | + header every keyframe | every 5th | every 30th |")
+    print("|---|---|---|---|---|---|")
+    for suffix, label in (("paper.npz", "paper"), ("npz", "mouth (default)"), ("full.npz", "full")):
+        rows = []
+        for path in dumps:
+            path = path.with_suffix("." + suffix)
+            if path.exists():
+                stream, head, n = datagrams(path, 0)
+                keys = -(-n // round(read_dump(path)[1]))  # fd-send: a keyframe a second
+                base = 8 * (sum(map(len, stream)) - head) / n
+                rows.append((head, base, *(8 * head * (keys - 1) // every / n for every in (1, 5, 30))))
+        if rows:
+            r = np.mean(rows, axis=0)
+            print(f"| {label} | {r[0]:.0f} | {r[1]:.1f} | +{r[2]:.1f} ({100 * r[2] / r[1]:.0f} %) | "
+                  f"+{r[3]:.1f} ({100 * r[3] / r[1]:.0f} %) | +{r[4]:.1f} ({100 * r[4] / r[1]:.0f} %) |")
+
+
+def bench_flood(rates: list[int], seconds: float) -> None:
+    """Real frames delivered by fd-recv --key while junk datagrams arrive at each rate."""
+    from common.keys import read_key
+    from protocol.secure import SecureSealer
+    from protocol.secure_stream import seal_stream
+    from tests.test_receiver_tools import smooth_tracks, stream_packets
+    from tests.test_secure_transport import flood, junk_for
+
+    n = round(25 * seconds)
+    with tempfile.TemporaryDirectory() as tmp:
+        key_file = Path(tmp) / "k.key"
+        subprocess.run([sys.executable, "-m", "sender.keygen", str(key_file)], check=True, cwd=ROOT,
+                       stderr=subprocess.DEVNULL)
+        sealed = seal_stream(SecureSealer(read_key(str(key_file))), [p for p, _ in stream_packets(smooth_tracks(n))])
+        print("| junk datagrams/s (asked) | junk sent | counted by fd-recv | real frames good | concealed |")
+        print("|---|---|---|---|---|")
+        for rate in rates:
+            proc = subprocess.Popen([sys.executable, "-m", "receiver.cli", "--listen", "udp://127.0.0.1:0",
+                                     "-o", str(Path(tmp) / "out.y4m"), "--size", "64", "--json", "--key", str(key_file),
+                                     "--timeout", "2"], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=ROOT)
+            port = int(proc.stderr.readline().decode().rsplit(":", 1)[1])
+            sent = flood(sealed, port, rate, 2 / 25, junk_for(sealed))
+            stats = json.loads(proc.communicate(timeout=300)[1].decode().strip().splitlines()[-1])
+            s = stats["security"]
+            print(f"| {rate} | {sent} | {s['auth_failures'] + s['replays']} | "
+                  f"{stats['frames'] - stats['concealed']} of {n} | {stats['concealed']} |", flush=True)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("what", choices=("loss", "header", "flood"))
+    p.add_argument("dumps", nargs="*", type=Path, help="fd-send --dump files (the default layout's)")
+    p.add_argument("--seeds", type=int, default=5)
+    p.add_argument("--rates", type=int, nargs="*", default=[0, 2000, 5000, 10000, 20000, 40000])
+    p.add_argument("--seconds", type=float, default=6.0, help="flood: length of the call")
+    args = p.parse_args()
+    if args.what == "loss":
+        bench_loss(args.dumps, args.seeds)
+    elif args.what == "header":
+        bench_header(args.dumps)
+    else:
+        bench_flood(args.rates, args.seconds)
+
+
+if __name__ == "__main__":
+    main()

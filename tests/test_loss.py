@@ -1,0 +1,232 @@
+"""Lossy links and late join: datagrams that carry the packets before them again, headers sent again at
+keyframes, over a deterministic in-memory link and over loopback UDP."""
+
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from common.errors import InputError
+from protocol.secure import SecureSealer
+from protocol.secure_stream import SecureDatagramDecoder
+from protocol.stream import DatagramDecoder, Datagrams, Frame, Header, PacketEncoder
+from sender.transport import open_sink
+from tests.test_output import parse_y4m
+from tests.test_receiver_tools import KEY, N, finish, header, smooth_tracks, start_listener
+
+RNG_SEEDS = range(5)
+
+
+def datagrams(params, copies=1, header_every=0, eager=0, sealer=None) -> tuple[list[bytes], list[np.ndarray]]:
+    """(datagrams, what the encoder says the receiver shows for each frame) of a stream at 2 frames per packet."""
+    enc = PacketEncoder(header(), 2)
+    head = enc.header()
+    pack = Datagrams(head[0], copies, header_every, eager, sealer)
+    out = ([sealer.preamble()] if sealer else []) + pack.add(head)
+    sent = []
+    for x in params:
+        out += pack.add(enc.frame(x, True))
+        sent.append(enc.reconstruction)
+    return out + pack.add(enc.end()), sent
+
+
+def receive(dec, stream: list[bytes]) -> list[Frame]:
+    return [e for d in stream for e in dec.receive(d) if isinstance(e, Frame)]
+
+
+def random_loss(stream: list[bytes], rate: float, seed: int, keep: int = 1) -> list[bytes]:
+    """``stream`` with each datagram after the first ``keep`` and before the last two (the end mark,
+    sent twice) lost at ``rate``."""
+    lost = np.random.default_rng(seed).random(len(stream)) < rate
+    lost[:keep] = lost[-2:] = False
+    return [d for d, gone in zip(stream, lost) if not gone]
+
+
+@pytest.mark.parametrize("seed", RNG_SEEDS)
+def test_five_percent_random_loss_keeps_95_percent_of_frames_good_and_delivers_every_one(seed):
+    """A minute of call: a datagram lost alone costs nothing; two in a row (a quarter of a percent)
+    cost the frames up to the next keyframe."""
+    n = 1500
+    stream, sent = datagrams(smooth_tracks(n))
+    got = receive(DatagramDecoder(), random_loss(stream, 0.05, seed))
+    assert [f.seq for f in got] == list(range(n))
+    good = [f for f in got if not f.concealed]
+    assert len(good) >= 0.95 * n
+    np.testing.assert_allclose([f.params for f in good], [sent[f.seq] for f in good], atol=1e-9)
+
+
+def test_one_lost_datagram_costs_no_frame_and_without_copies_only_a_concealed_second():
+    """Each frames datagram lost alone, in turn: with one copy nothing is concealed; without, the
+    frames up to the next keyframe are, interpolated between the last good frame and it."""
+    params = smooth_tracks()
+    for copies in (1, 0):
+        stream, sent = datagrams(params, copies)
+        for lost in range(2, len(stream) - 2):
+            got = receive(DatagramDecoder(), stream[:lost] + stream[lost + 1:])
+            assert [f.seq for f in got] == list(range(N))
+            concealed = [f.seq for f in got if f.concealed]
+            if copies:
+                assert not concealed, lost
+                continue
+            assert concealed and len(concealed) <= KEY and concealed[-1] + 1 == min(N, (concealed[0] // KEY + 1) * KEY)
+            if concealed[-1] + 1 < N:  # between two good frames: a straight line from one to the other
+                a, b = concealed[0] - 1, concealed[-1] + 1
+                for f in got[concealed[0]:b]:
+                    t = (f.seq - a) / (b - a)
+                    np.testing.assert_allclose(f.params, sent[a] + t * (sent[b] - sent[a]), atol=1e-9)
+
+
+def test_copies_and_sealing_survive_loss_together():
+    sealer = SecureSealer(b"k" * 32)
+    stream, _ = datagrams(smooth_tracks(), sealer=sealer)
+    dec = SecureDatagramDecoder(b"k" * 32)
+    got = receive(dec, random_loss(stream, 0.05, 1, keep=2))
+    assert [f.seq for f in got] == list(range(N)) and sum(f.concealed for f in got) <= 0.05 * N
+    assert dec.security.auth_failures == dec.security.replays == 0
+
+
+def test_copies_cost_about_one_packet_more_per_datagram():
+    """What the redundancy costs, as docs/bitstream.md reports it: each delta's datagram carries one
+    packet more, so the frames' bytes about double; the header and end are sent as they are."""
+    plain, _ = datagrams(smooth_tracks(), copies=0)
+    copied, _ = datagrams(smooth_tracks(), copies=1)
+    ratio = sum(map(len, copied[1:])) / sum(map(len, plain[1:]))
+    assert 1.6 < ratio < 2.1
+
+
+def test_a_receiver_joining_late_renders_from_the_keyframe_after_the_header():
+    stream, sent = datagrams(smooth_tracks(), header_every=1)
+    start = len(stream) // 3  # mid-call: the first header and keyframes are gone
+    got = receive(DatagramDecoder(), stream[start:])
+    first = got[0].seq
+    assert first % KEY == 0 and 0 < first < N and [f.seq for f in got] == list(range(first, N))
+    assert not any(f.concealed for f in got)
+    np.testing.assert_allclose([f.params for f in got], sent[first:], atol=1e-9)
+
+
+def test_a_sealed_stream_can_be_joined_late_too():
+    """The preamble goes again with the header; copies of it are ignored once one is taken."""
+    stream, sent = datagrams(smooth_tracks(), header_every=1, sealer=SecureSealer(b"k" * 32))
+    dec = SecureDatagramDecoder(b"k" * 32)
+    got = receive(dec, stream[len(stream) // 3:])
+    first = got[0].seq
+    assert first % KEY == 0 and [f.seq for f in got] == list(range(first, N)) and dec.ended
+    np.testing.assert_allclose([f.params for f in got], sent[first:], atol=1e-9)
+    assert dec.security.auth_failures == dec.security.replays == 0
+
+
+def test_a_receiver_holding_the_header_starts_at_the_first_keyframe_and_ignores_others():
+    """No header is sent again: the keyframes name it, and the receiver holds it already."""
+    stream, _ = datagrams(smooth_tracks(), eager=0, header_every=0)
+    start = len(stream) // 3
+    other = Header(25.0, header().names, header().steps * 2, header().face_id, key_interval=KEY)
+    assert not receive(DatagramDecoder([other]), stream[start:])
+    dec = DatagramDecoder([other, header()])
+    got = receive(dec, stream[start:])
+    assert dec.header == header() and got[0].seq % KEY == 0 and [f.seq for f in got] == list(range(got[0].seq, N))
+
+
+def test_the_header_goes_again_before_the_first_keyframes_then_every_nth():
+    enc = PacketEncoder(header(), 2)
+    head = enc.header()
+    pack = Datagrams(head[0], copies=0, header_every=5, eager=2)
+    out = pack.add(head)
+    for x in smooth_tracks(KEY * 12):
+        out += pack.add(enc.frame(x, True))
+    keys = [i for i, d in enumerate(out) if header().ident in d]  # keyframe packets name their header
+    assert len(keys) == 12
+    assert [i for i, d in enumerate(out) if d == head[0]] == [0] + [keys[n] - 1 for n in (1, 2, 5, 10)]
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_over_udp_five_percent_loss_keeps_95_percent_good(tmp_path):
+    stream, _ = datagrams(smooth_tracks())
+    proc, port = start_listener("udp://127.0.0.1:0", tmp_path)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        for d in random_loss(stream, 0.05, 11):
+            sock.sendto(d, ("127.0.0.1", port))
+            time.sleep(0.002)
+    stats, _ = finish(proc)
+    dump = np.load(tmp_path / "recv.npz")
+    np.testing.assert_array_equal(dump["seq"], np.arange(N))
+    assert stats["frames"] == N and stats["concealed"] <= 0.05 * N and stats["ended"]
+
+
+def test_a_receiver_started_after_the_sender_renders_from_the_next_keyframe(tmp_path):
+    """The sender is already sending at the stream's rate when fd-recv starts listening."""
+    stream, _ = datagrams(smooth_tracks(), header_every=1)
+    port = free_udp_port()
+    listening = threading.Event()
+
+    def send():
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            for i, d in enumerate(stream):
+                if i == len(stream) // 3:
+                    listening.wait(60)
+                sock.sendto(d, ("127.0.0.1", port))
+                time.sleep(2 / 25)
+
+    sender = threading.Thread(target=send)
+    sender.start()
+    time.sleep(0.5)  # the sender has sent its header and a few packets into nothing
+    proc, _ = start_listener(f"udp://127.0.0.1:{port}", tmp_path)
+    listening.set()
+    stats, _ = finish(proc)
+    sender.join()
+    dump = np.load(tmp_path / "recv.npz")
+    first = int(dump["seq"][0])
+    assert first > 0 and first % KEY == 0
+    np.testing.assert_array_equal(dump["seq"], np.arange(first, N))
+    assert stats["concealed"] == 0 and stats["ended"] and parse_y4m((tmp_path / "out.y4m").read_bytes())[1] == N - first
+
+
+def test_a_tcp_sender_waits_for_the_receiver(monkeypatch):
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:  # a free port, bound a moment later
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    got = []
+
+    def listen_later():
+        time.sleep(0.5)
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as server:
+            server.bind(("127.0.0.1", port))
+            server.listen(1)
+            conn, _ = server.accept()
+            with conn:
+                got.append(conn.recv(100))
+
+    listener = threading.Thread(target=listen_later)
+    listener.start()
+    sink = open_sink(f"tcp://127.0.0.1:{port}")
+    sink.write([b"\xfdhello"])
+    sink.close()
+    listener.join(30)
+    assert got == [b"\xfdhello"]
+    monkeypatch.setattr("sender.transport.CONNECT_WAIT", 0.3)
+    with pytest.raises(InputError, match="nobody is listening"):
+        open_sink(f"tcp://127.0.0.1:{port}")
+
+
+def test_a_receiver_restarted_mid_call_starts_at_once_from_the_headers_it_kept(tmp_path):
+    """The header is never sent again; fd-recv --headers kept it from the call's start."""
+    stream, _ = datagrams(smooth_tracks(), eager=0, header_every=0)
+    kept = tmp_path / "headers"
+    kept.mkdir()
+    for run, part in (("first", stream[:10]), ("again", stream[len(stream) // 3:])):
+        (tmp_path / run).mkdir()
+        proc, port = start_listener("udp://127.0.0.1:0", tmp_path / run, "--headers", str(kept), "--timeout", "0.5")
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            for d in part:
+                sock.sendto(d, ("127.0.0.1", port))
+        stats, _ = finish(proc)
+    assert [p.name for p in kept.iterdir()] == [header().ident.hex() + ".fdheader"]
+    seq = np.load(tmp_path / "again" / "recv.npz")["seq"]
+    assert seq[0] % KEY == 0 and seq[0] > 0 and stats["concealed"] == 0 and stats["ended"]
+    np.testing.assert_array_equal(seq, np.arange(seq[0], N))
