@@ -101,9 +101,11 @@ class Display:
     def __init__(self) -> None:
         if re.search(r"^\s*GUI:\s*NONE\s*$", cv2.getBuildInformation(), re.MULTILINE):
             raise InputError("--show needs OpenCV with a GUI backend; the installed one is headless "
-                             "(pipe to a player instead: -o - | ffplay -)")
+                             "(watch in a browser instead: --serve 127.0.0.1:8080, or pipe to a player: "
+                             "-o - | ffplay -)")
         if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-            raise InputError("--show needs a display (DISPLAY is not set)")
+            raise InputError("--show needs a display (DISPLAY is not set): --serve 127.0.0.1:8080 shows "
+                             "the video in a browser")
         try:
             cv2.namedWindow(self.TITLE, cv2.WINDOW_AUTOSIZE)
         except cv2.error:

@@ -7,6 +7,7 @@ message when it cannot be used.
 
 import os
 import re
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -150,6 +151,51 @@ class CameraSource:
             if not ok:
                 self._cap.release()
                 return
+            yield frame
+
+
+class LoopedSource:
+    """A file or image sequence played over and over until ``seconds`` of input (at its frame rate)
+    have gone by: a long call from a short clip, for benchmarks of memory and latency."""
+
+    def __init__(self, spec: str, seconds: float) -> None:
+        first = open_source(spec)
+        self._spec, self.fps, self.size = spec, first.fps, first.size
+        self.length = max(1, round(seconds * self.fps))
+        self._first = first
+
+    def frames(self) -> Iterator[np.ndarray]:
+        source, count = self._first, 0
+        while True:
+            looped = 0
+            for frame in source.frames():
+                if count == self.length:
+                    return
+                yield frame
+                count, looped = count + 1, looped + 1
+            if not looped:
+                raise InputError(f"{self._spec}: no frames to loop")
+            source = open_source(self._spec)
+
+
+class PacedSource:
+    """Another source's frames handed over no faster than its frame rate, as a camera delivers them:
+    frame i at ``start + i / fps``, where start is when the first frame is read (``fd-send
+    --realtime``); a frame that takes longer to read comes as soon as it is read."""
+
+    def __init__(self, source) -> None:
+        self._source = source
+        self.fps, self.size, self.length = source.fps, source.size, source.length
+
+    def frames(self) -> Iterator[np.ndarray]:
+        start = None
+        for index, frame in enumerate(self._source.frames()):
+            now = time.monotonic()
+            if start is None:
+                start = now
+            due = start + index / self.fps
+            if due > now:
+                time.sleep(due - now)
             yield frame
 
 

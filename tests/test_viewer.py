@@ -1,0 +1,186 @@
+"""fd-recv --serve: the live video and the call's statistics in a browser, with the headless OpenCV.
+
+The browser test runs Debian's ``chromium`` headless (CI installs the package);
+it is skipped where no browser is installed. Sockets are on loopback only;
+every wait has a deadline.
+"""
+
+import contextlib
+import http.client
+import json
+import selectors
+import shutil
+import socket
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from common.errors import InputError
+from receiver.viewer import BOUNDARY, Viewer, parse_serve
+from sender.detector import FaceDetector
+from tests.test_receiver_tools import DEADLINE, FPS, RECV, ROOT, smooth_tracks, stream_packets
+
+BROWSER = shutil.which("chromium") or shutil.which("chromium-browser")
+CALL = 250  # frames: 10 s
+
+
+@pytest.mark.parametrize("text, address", [
+    ("127.0.0.1:8080", ("127.0.0.1", 8080)), (":8080", ("127.0.0.1", 8080)),
+    ("0.0.0.0:80", ("0.0.0.0", 80)), ("[::1]:9000", ("::1", 9000)), ("localhost:0", ("localhost", 0)),
+])
+def test_serve_addresses(text, address):
+    assert parse_serve(text) == address
+
+
+@pytest.mark.parametrize("text", ["8080", "host:", "host:http", ":70000", ""])
+def test_a_wrong_serve_address_is_one_line(text):
+    with pytest.raises(InputError, match="expected HOST:PORT"):
+        parse_serve(text)
+
+
+def test_a_port_in_use_is_one_line():
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        with pytest.raises(InputError, match=f"cannot serve on 127.0.0.1:{port}"):
+            Viewer(f":{port}")
+
+
+def get(url: str, path: str) -> tuple[int, str, bytes]:
+    host, port = url.removeprefix("http://").rstrip("/").rsplit(":", 1)
+    conn = http.client.HTTPConnection(host, int(port), timeout=DEADLINE)
+    try:
+        conn.request("GET", path)
+        response = conn.getresponse()
+        return response.status, response.getheader("Content-Type"), response.read()
+    finally:
+        conn.close()
+
+
+def first_jpeg(url: str) -> np.ndarray:
+    """The first frame of /stream.mjpg, decoded to (H, W, 3) RGB."""
+    host, port = url.removeprefix("http://").rstrip("/").rsplit(":", 1)
+    conn = http.client.HTTPConnection(host, int(port), timeout=DEADLINE)
+    try:
+        conn.request("GET", "/stream.mjpg")
+        response = conn.getresponse()
+        assert response.getheader("Content-Type") == f"multipart/x-mixed-replace; boundary={BOUNDARY}"
+        assert response.readline() == f"--{BOUNDARY}\r\n".encode()
+        fields = dict(line.decode().strip().split(": ", 1) for line in iter(response.readline, b"\r\n"))
+        assert fields["Content-Type"] == "image/jpeg"
+        data = response.read(int(fields["Content-Length"]))
+    finally:
+        conn.close()
+    return cv2.cvtColor(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+def test_the_latest_frame_and_the_stats_are_served():
+    viewer = Viewer("127.0.0.1:0")
+    try:
+        status, kind, page = get(viewer.url, "/")
+        assert status == 200 and kind.startswith("text/html") and b'src="/stream.mjpg"' in page
+        assert get(viewer.url, "/stats.json")[2] == b"{}"  # before the call starts
+        viewer.stats = lambda: {"frames": 3, "concealed": 1}
+        assert json.loads(get(viewer.url, "/stats.json")[2]) == {"frames": 3, "concealed": 1}
+        assert get(viewer.url, "/missing")[0] == 404
+        rng = np.random.default_rng(1)
+        old = np.zeros((48, 64, 3), np.uint8)
+        new = cv2.GaussianBlur(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8), (9, 9), 3)
+        viewer.write(old)
+        viewer.write(new)  # only the latest is kept
+        shown = first_jpeg(viewer.url)
+        assert shown.shape == new.shape
+        assert np.abs(shown.astype(int) - new).mean() < 4  # JPEG's loss
+    finally:
+        viewer.close()
+    viewer.close()  # once is enough; twice does no harm
+
+
+def test_show_without_a_gui_points_to_serve(monkeypatch):
+    from receiver.output import Display
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(InputError, match="--serve"):
+        Display()
+
+
+@contextlib.contextmanager
+def live_call():
+    """fd-recv --listen udp --serve, fed a call of 10 s in real time from a thread: yields the
+    page's URL once a frame is rendered, then checks that fd-recv ends as usual with every frame."""
+    proc = subprocess.Popen(RECV + ["--listen", "udp://127.0.0.1:0", "--serve", "127.0.0.1:0", "--size", "256",
+                                    "--json"], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=ROOT)
+    sender = None
+    try:
+        with selectors.DefaultSelector() as sel:
+            sel.register(proc.stderr, selectors.EVENT_READ)
+            assert sel.select(timeout=DEADLINE), "fd-recv did not start"
+        watch, listen = (proc.stderr.readline().decode().strip() for _ in range(2))
+        assert watch.startswith("fd-recv: watch at http://127.0.0.1:"), watch
+        url, port = watch.rsplit(" ", 1)[1], int(listen.rsplit(":", 1)[1])
+        sender = threading.Thread(target=send_in_real_time, args=(port,))
+        sender.start()
+        deadline = time.monotonic() + DEADLINE
+        while json.loads(get(url, "/stats.json")[2]).get("frames", 0) == 0:
+            assert time.monotonic() < deadline, "no frame rendered"
+            time.sleep(0.05)
+        yield url
+        sender.join()
+        _, err = proc.communicate(timeout=DEADLINE)
+        assert proc.returncode == 0, err.decode()
+        assert json.loads(err.decode().strip().splitlines()[-1])["frames"] == CALL
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        if sender is not None:
+            sender.join()
+
+
+def send_in_real_time(port: int) -> None:
+    """The call's datagrams, each once the last frame it carries is due (25 frames a second)."""
+    started = time.monotonic()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        for packet, frames in stream_packets(smooth_tracks(CALL)):
+            if frames is not None:
+                time.sleep(max(0.0, started + (frames[1] + 1) / FPS - time.monotonic()))
+            sock.sendto(packet, ("127.0.0.1", port))
+
+
+@pytest.mark.slow
+def test_fd_recv_serves_the_call_while_it_lasts():
+    with live_call() as url:
+        stats = json.loads(get(url, "/stats.json")[2])
+        assert stats["frames"] > 0 and stats["concealed"] == 0 and stats["damage_reports"] == 0
+        assert 0 < stats["kbit_per_s"] < 100
+        frame = first_jpeg(url)
+        assert frame.shape == (256, 256, 3) and frame.std() > 10  # a face drawn, not a blank picture
+
+
+def screenshot(url: str, path: Path, profile: Path) -> np.ndarray:
+    """(H, W, 3) RGB of the page at ``url`` as headless chromium draws it after 2 s of its time."""
+    subprocess.run([BROWSER, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                    f"--user-data-dir={profile}", f"--screenshot={path}", "--window-size=800,600",
+                    "--virtual-time-budget=2000", url],
+                   capture_output=True, timeout=DEADLINE, check=True)
+    return cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(BROWSER is None, reason="no chromium installed (apt-get install chromium)")
+def test_a_browser_shows_the_live_face(tmp_path):
+    with live_call() as url:
+        shot = screenshot(url, tmp_path / "shot.png", tmp_path / "profile")
+    blank = screenshot("data:text/html,<body style='background:%23111'>", tmp_path / "blank.png", tmp_path / "profile")
+    video = shot[16:16 + 256, 16:16 + 256]  # where the page puts a 256x256 picture
+    assert video.std() > 10 and np.abs(video.astype(int) - blank[16:272, 16:272]).mean() > 10
+    faces = FaceDetector().detect(cv2.cvtColor(shot, cv2.COLOR_RGB2BGR))
+    assert faces, "no face in the browser's screenshot"
