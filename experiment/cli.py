@@ -1,6 +1,7 @@
-"""fd-experiment: our codec against H.264, H.265 and AV1 on the same face crops, over a bitrate ladder."""
+"""fd-experiment: our codec against H.264, H.265, AV1 and H.266 on the same face crops, judged on the whole picture."""
 
 import argparse
+import json
 import os
 import sys
 from functools import lru_cache
@@ -11,44 +12,53 @@ from common.cli import ArgumentParser, run_main
 EPILOG = """examples:
   fd-experiment samples/grid_bbaf2n.mpg --out results/
   fd-experiment clips/*.mp4 --sizes 256 512 --qualities 1 3 5 --jobs 2
-  fd-experiment clips/*.mp4 --scheduler tcp://10.0.0.5:8786   # a Dask cluster
+  fd-experiment clips/*.mp4 --scheduler tcp://10.0.0.5:8786   # a Dask cluster sharing --out
 
-Writes results.csv and results.json (one row per run), a plot per measure and
-size (<measure>_<size>.png), and per clip and size a side-by-side video
-(original | ours | x264 at the bitrate nearest ours).
+Writes one file per run in <out>/rows/ as it finishes (run again with the same
+--out to resume: finished runs are not redone), then results.csv and
+results.json (one row per run), table.md (our default settings against each
+baseline at its floor and at about 3 times it), a plot per measure and size
+(<measure>_<size>.png, overview_<size>.png) and per clip and size a
+side-by-side video (original | ours | x264 at the rate nearest ours | SVT-AV1
+at its floor). Coded streams, crops and face models stay in <out>/work/.
 """
 
 
 def parse_args(argv=None) -> argparse.Namespace:
+    from experiment.baselines import CODECS
+
     p = ArgumentParser(prog="fd-experiment", epilog=EPILOG, description=(
-        "Bitrate against quality: each clip is cropped to the face, then coded by this codec over a "
-        "ladder of quality levels and parameter sets, and by x264, x265 and SVT-AV1 over a ladder of "
-        "bitrates; every decoded video is measured with the same tracker (AKD, mouth AKD, mouth-opening "
-        "correlation, mouth-and-jaw motion error) and in pixels inside the face (PSNR, SSIM)."))
+        "Bitrate against quality: each clip is cut to one square face crop per size, written losslessly "
+        "once; every codec takes that crop: this codec over quality levels (fd-enroll, fd-send, fd-recv), "
+        "and x264, x265, SVT-AV1 and VVenC from their floor (coarsest quantiser) up. Every decoded video is "
+        "measured whole against the crop (PSNR of R, G, B and its 5th percentile over frames, SSIM and "
+        "MS-SSIM on luma, VMAF) and with the same tracker (AKD, mouth AKD, mouth-opening correlation, "
+        "mouth-and-jaw motion error)."))
     p.add_argument("clips", nargs="+", type=Path, help="video files of talking faces")
     p.add_argument("--out", type=Path, default=Path("results"), help="output folder (default results/)")
-    p.add_argument("--sizes", type=int, nargs="+", default=[256], choices=(128, 256, 512),
-                   help="face-crop sizes (default 256)")
+    p.add_argument("--sizes", type=int, nargs="+", default=[256, 512], choices=(128, 256, 512),
+                   help="face-crop sizes (default 256 512)")
     p.add_argument("--qualities", type=int, nargs="+", default=[1, 2, 3, 4, 5], choices=range(1, 6),
-                   metavar="Q", help="our quality levels (default 1 2 3 4 5)")
-    p.add_argument("--layouts", nargs="+", default=["paper", "mouth", "full", "personal"],
-                   choices=("paper", "full", "mouth", "personal"),
-                   help="our parameter sets (default paper mouth full personal: mouth and personal are "
-                        "fd-send's defaults without and with a motion basis); personal runs with the own "
-                        "face only, its motion basis learned from the first half of the clip")
-    p.add_argument("--faces", nargs="+", default=["generic", "own"], choices=("generic", "own"),
-                   help="our receiver's face: the generic shaded one, and/or the speaker's own model made "
-                        "by fd-enroll from the clip (default both)")
+                   metavar="Q", help="our quality levels (default 1 2 3 4 5; fd-send's default is 3)")
+    p.add_argument("--layouts", nargs="+", default=["auto"], choices=("auto", "paper", "full", "mouth", "personal"),
+                   help="our parameter sets (default auto: fd-send's default, personal with the own face's "
+                        "motion basis); personal runs with the own face only")
+    p.add_argument("--faces", nargs="*", default=["own"], choices=("generic", "own"),
+                   help="our receiver's face: the speaker's own model made by fd-enroll from the crop (default; "
+                        "the receiver draws the whole picture from it when it can), and/or the generic shaded "
+                        "one; none: baselines only")
     p.add_argument("--send-every", type=int, nargs="+", default=[1], choices=range(1, 17), metavar="N",
                    help="our frame-rate divisors (fd-send --send-every: one frame in N is sent, the receiver "
                         "interpolates; default 1); runs with N > 1 are named ours-<layout>-every<N>")
-    p.add_argument("--baselines", nargs="+", default=["x264", "x265", "av1"], choices=("x264", "x265", "av1"),
-                   help="conventional codecs (default all three)")
-    p.add_argument("--bitrates", type=float, nargs="+", default=[8, 12, 16, 24, 32, 48, 64, 96], metavar="KBPS",
-                   help="baseline target bitrates in kbit/s (default 8 12 16 24 32 48 64 96)")
+    p.add_argument("--baselines", nargs="*", default=list(CODECS), choices=tuple(CODECS),
+                   help=f"conventional codecs (default all: {' '.join(CODECS)}; vvc is VVenC; none: ours only)")
+    p.add_argument("--rungs", type=int, default=5, metavar="N",
+                   help="baseline settings per codec, from its floor (CRF or QP at its coarsest) up by 3 "
+                        "quantiser steps each, 6 for vvc (default 5)")
     p.add_argument("--seconds", type=float, help="use only the first SECONDS of each clip")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="local worker processes (default: cores)")
-    p.add_argument("--scheduler", metavar="ADDRESS", help="run on a Dask cluster instead (needs dask.distributed)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on a Dask cluster instead (needs dask.distributed; workers must see --out)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     return p.parse_args(argv)
 
@@ -59,42 +69,65 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
+    from common.errors import InputError
+    from experiment.baselines import CODECS, check, ladder
     from experiment.clips import prepare
-    from experiment.report import plot, write_rows
+    from experiment.metrics import vmaf_available
+    from experiment.report import plot, table, write_rows
+    from experiment.runs import ours_name
 
-    args.out.mkdir(parents=True, exist_ok=True)
-    work = args.out / "work"
-    work.mkdir(exist_ok=True)
+    if not (args.faces or args.baselines):
+        raise InputError("nothing to run: give --faces or --baselines")
+    if args.rungs < 1:
+        raise InputError(f"--rungs must be at least 1, not {args.rungs}")
+    for codec in args.baselines:
+        check(codec)
+    vmaf_available()
+    work, done = args.out / "work", args.out / "rows"
+    work.mkdir(parents=True, exist_ok=True)
+    done.mkdir(exist_ok=True)
     say = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
     prepared = []
     for path in args.clips:
         for size in args.sizes:
             clip = prepare(path, size, work, args.seconds)
             say(f"fd-experiment: {clip.name} at {size}x{size}: {len(clip.frames)} frames at {clip.fps:g} fps")
-            prepared.append({"name": clip.name, "path": str(clip.path), "fps": clip.fps})
+            prepared.append({"name": clip.name, "path": str(clip.path), "fps": clip.fps, "size": size})
     tasks = [{**c, "kind": "ours", "layout": layout, "quality": q, "own": face == "own", "every": n,
-              "work": str(work)}
+              "work": str(work), "key": f"{ours_name(layout, face == 'own', n)}_q{q}"}
              for c in prepared for face in args.faces for layout in args.layouts for q in args.qualities
              for n in args.send_every if face == "own" or layout != "personal"]
-    tasks += [{**c, "kind": codec, "bps": int(kbps * 1000)}
-              for c in prepared for codec in args.baselines for kbps in args.bitrates]
-    rows = []
-    for row in _map(execute, tasks, args):
-        rows.append(row)
-        say(f"fd-experiment: [{len(rows)}/{len(tasks)}] {row['clip']} {row['size']} {row['codec']} "
-            f"{row['setting']}: {row['bitrate_bps'] / 1000:.2f} kbit/s, AKD {row['akd_aligned']:.4f}, "
-            f"mouth AKD {row['mouth_akd_aligned']:.4f}")
-    rows.sort(key=lambda r: (r["clip"], r["size"], r["codec"], r["bitrate_bps"]))
+    tasks += [{**c, "kind": codec, "setting": s, "work": str(work), "key": f"{codec}_{CODECS[codec].knob}{s}"}
+              for c in prepared for codec in args.baselines for s in ladder(codec, args.rungs)]
+
+    def row_file(task: dict) -> Path:
+        return done / f"{task['name']}_{task['size']}_{task['key']}.json"
+
+    todo = [t for t in tasks if not row_file(t).exists()]
+    if len(todo) < len(tasks):
+        say(f"fd-experiment: {len(tasks) - len(todo)} of {len(tasks)} runs already done in {done}")
+    for count, (task, row) in enumerate(_map(execute, todo, args), 1):
+        partial = row_file(task).with_suffix(".part")
+        partial.write_text(json.dumps(row, default=float) + "\n")
+        partial.replace(row_file(task))  # whole or absent: a crash never leaves half a row
+        say(f"fd-experiment: [{count}/{len(todo)}] {row['clip']} {row['size']} {row['codec']} {row['setting']}: "
+            f"{row['bitrate_bps'] / 1000:.2f} kbit/s, PSNR {row['psnr']:.2f} dB, VMAF {row['vmaf']:.1f}, "
+            f"mouth AKD {row['mouth_akd']:.4f}")
+    rows = sorted((json.loads(row_file(t).read_text()) for t in tasks),
+                  key=lambda r: (r["clip"], r["size"], r["codec"], r["bitrate_bps"]))
     write_rows(rows, args.out)
+    (args.out / "table.md").write_text(table(rows))
     plots = plot(rows, args.out)
     for c in prepared:
-        _side_by_side(_clip(c["name"], c["path"], c["fps"]), rows, args.out)
+        _side_by_side(c, rows, args.out)
     say(f"fd-experiment: {len(rows)} runs -> {args.out}/results.csv, {len(plots)} plots")
     return 0
 
 
 def _map(function, tasks: list, args):
-    """Results in completion order, from a local process pool or a Dask cluster."""
+    """(task, result) pairs in completion order, from a local process pool or a Dask cluster."""
+    if not tasks:
+        return
     if args.scheduler:
         try:
             from dask.distributed import Client, as_completed
@@ -103,17 +136,24 @@ def _map(function, tasks: list, args):
 
             raise FdError("--scheduler needs dask.distributed: pip install 'facedeform[cluster]'") from None
         with Client(args.scheduler) as client:
-            for future in as_completed(client.map(function, tasks, pure=False)):
-                yield future.result()
+            futures = client.map(function, tasks, pure=False)
+            index = {future.key: task for future, task in zip(futures, tasks)}
+            for future in as_completed(futures):
+                yield index[future.key], future.result()
         return
     if args.jobs <= 1:
-        yield from map(function, tasks)
+        for task in tasks:
+            yield task, function(task)
         return
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent import futures
 
-    with ProcessPoolExecutor(args.jobs) as pool:
-        for future in as_completed([pool.submit(function, t) for t in tasks]):
-            yield future.result()
+    with futures.ProcessPoolExecutor(args.jobs) as pool:
+        pending = {pool.submit(function, t): t for t in tasks}
+        try:
+            for future in futures.as_completed(pending):
+                yield pending[future], future.result()
+        finally:  # a failed run ends the whole at once (finished rows are kept), not after every other run
+            pool.shutdown(cancel_futures=True)
 
 
 @lru_cache(maxsize=2)
@@ -130,30 +170,38 @@ def execute(task: dict) -> dict:
     clip = _clip(task["name"], task["path"], task["fps"])
     if task["kind"] == "ours":
         return run_ours(clip, task["quality"], task["layout"], Path(task["work"]), task["own"], task["every"])[0]
-    return run_baseline(clip, task["kind"], task["bps"])[0]
+    return run_baseline(clip, task["kind"], task["setting"], Path(task["work"]))[0]
 
 
-def _side_by_side(clip, rows: list, out: Path) -> None:
-    """original | ours (the middle-bitrate run, own face if run) | x264 at the bitrate nearest ours."""
+def _side_by_side(clip: dict, rows: list, out: Path) -> None:
+    """original | ours (fd-send's default quality, own face if run) | x264 at the rate nearest ours
+    (one-off bytes counted) | SVT-AV1 at its floor, from the streams the runs left in the work folder."""
+    from experiment.baselines import CODECS, decode
+    from experiment.clips import read_video
     from experiment.report import side_by_side
-    from experiment.runs import run_baseline, run_ours
+    from experiment.runs import receive
 
-    size = clip.frames[0].shape[0]
-    same = [r for r in rows if r["clip"] == clip.name and r["size"] == size]
+    size, work = clip["size"], out / "work"
+    same = [r for r in rows if r["clip"] == clip["name"] and r["size"] == size]
+    columns = [("original", read_video(Path(clip["path"])))]
     mine = sorted((r for r in same if r["codec"].startswith("ours")), key=lambda r: r["bitrate_bps"])
-    mine = [r for r in mine if r["codec"].endswith("-own")] or mine
-    theirs = [r for r in same if r["codec"] == "x264"]
-    if not mine or not theirs:
-        return
-    ours_row = mine[len(mine) // 2]
-    near = min(theirs, key=lambda r: abs(r["bitrate_bps"] - ours_row["bitrate_bps"]))
-    layout = ours_row["codec"].split("-")[1]
-    _, ours = run_ours(clip, int(ours_row["setting"][1:]), layout, out / "work", ours_row["codec"].endswith("-own"))
-    _, x264 = run_baseline(clip, "x264", int(near["setting"][:-3]))
-    side_by_side(out / f"side_by_side_{clip.name}_{size}.mp4", clip.fps, [
-        ("original", clip.frames),
-        (f"ours {ours_row['bitrate_bps'] / 1000:.2f} kbit/s", ours),
-        (f"x264 {near['bitrate_bps'] / 1000:.1f} kbit/s", x264)])
+    mine = [r for r in mine if "-own" in r["codec"]] or mine
+    if mine:
+        ours = next((r for r in mine if r["setting"] == "q3"), mine[len(mine) // 2])
+        face = [str(work / f"{clip['name']}_{size}.fdface")] if "-own" in ours["codec"] else []
+        frames = receive(work / f"{clip['name']}_{size}_{ours['codec']}_{ours['setting']}.fd", size, face)
+        columns.append((f"ours {ours['bitrate_bps'] / 1000:.2f} kbit/s, {ours['bitrate_oneoff_bps'] / 1000:.1f} "
+                        "with one-off", frames))
+    for codec, label in (("x264", "x264"), ("av1", "SVT-AV1 floor")):
+        theirs = [r for r in same if r["codec"] == codec]
+        if not theirs:
+            continue
+        pick = (min(theirs, key=lambda r: abs(r["bitrate_bps"] - ours["bitrate_oneoff_bps"])) if codec == "x264"
+                and mine else min(theirs, key=lambda r: r["bitrate_bps"]))
+        stream = work / f"{clip['name']}_{size}_{codec}_{pick['setting']}.{CODECS[codec].suffix}"
+        columns.append((f"{label} {pick['bitrate_bps'] / 1000:.1f} kbit/s", decode(codec, stream, (size, size))))
+    if len(columns) > 1:
+        side_by_side(out / f"side_by_side_{clip['name']}_{size}.mp4", clip["fps"], columns)
 
 
 if __name__ == "__main__":

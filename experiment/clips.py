@@ -1,12 +1,20 @@
 """Test clips as every codec sees them: a square face crop at a fixed size, stored losslessly.
 
-As in the JVET tests of generative face video coding, each clip is cut to a
-square around the face (the same crop for the whole clip, from the face's
-extent over all frames) and scaled to 256x256 or 512x512. The crop is written
-as lossless H.264 so that our sender, which reads files, and the baselines,
-which take frames, start from the same pixels.
+As in the JVET tests of generative face video coding, every codec, ours
+included, takes the same square face crop of each clip. The rule: the box
+around every landmark the tracker finds in every frame of the clip (the union
+of the per-frame landmark boxes, so a moving head stays inside); its side is
+MARGIN times the larger of that box's width and height, its centre that box's
+centre moved up by a tenth of the side (room for the forehead and hair, less
+below the chin); the box is then shifted to lie inside the frame, and shrunk
+to the frame's shorter side if it cannot fit; one box for the whole clip,
+scaled to 256x256 or 512x512 with INTER_AREA. The crop is written once per
+clip and size as FFV1 in RGB (bit-exact: checked on writing), at the clip's
+frame rate, so that our sender and enroller, which read files, and the
+baselines, which take frames, start from the same pixels.
 """
 
+import json
 from dataclasses import dataclass
 from itertools import islice
 from pathlib import Path
@@ -14,10 +22,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from common.errors import NoFaceError
+from common.errors import FdError, InputError, NoFaceError
 from sender.sources import VideoSource
 
 MARGIN = 1.8  # crop side over the face's largest extent: forehead to chin with room around
+RAISE = 0.1  # the crop's centre moves up by this share of its side
 
 
 @dataclass(frozen=True)
@@ -42,50 +51,75 @@ def track(frames_rgb: list) -> np.ndarray:
     return out
 
 
+def crop_box(landmarks: np.ndarray, width: int, height: int) -> tuple[int, int, int]:
+    """(x, y, side) in pixels of the square crop of a clip whose (t, 468, 2+) landmarks (NaN rows
+    without a face) are given, in a ``width`` x ``height`` frame (the rule in this module's doc)."""
+    seen = ~np.isnan(landmarks).any(axis=(1, 2))
+    lo = landmarks[seen, :, :2].min(axis=(0, 1))
+    hi = landmarks[seen, :, :2].max(axis=(0, 1))
+    side = min(MARGIN * float(np.max(hi - lo)), width, height)
+    centre = (lo + hi) / 2 - [0.0, RAISE * side]
+    side = int(round(side))
+    x, y = (int(round(float(np.clip(c - side / 2, 0, extent - side)))) for c, extent in zip(centre, (width, height)))
+    return x, y, side
+
+
 def prepare(source: Path, size: int, out_dir: Path, seconds: float | None = None) -> Clip:
-    """Reads ``source``, crops the face, scales to ``size``, writes ``out_dir/<name>_<size>.mp4``."""
+    """Reads ``source``, crops the face, scales to ``size``, writes ``out_dir/<name>_<size>.mkv`` and
+    its crop box beside it (.json); a crop already written is read back instead (a resumed run)."""
+    name = Path(source).stem
+    path = Path(out_dir) / f"{name}_{size}.mkv"
+    info = path.with_suffix(".json")
+    if path.exists() and info.exists():
+        known = json.loads(info.read_text())
+        if known.get("seconds") != seconds:
+            raise InputError(f"{out_dir} holds {path.name} made with --seconds {known.get('seconds')}, not "
+                             f"{seconds}: use another --out")
+        return load(name, path, known["fps"])
     video = VideoSource(source)
     limit = None if seconds is None else max(1, round(seconds * video.fps))
     rgb = [cv2.cvtColor(f, cv2.COLOR_BGR2RGB) for f in islice(video.frames(), limit)]
     found = track(rgb)
-    seen = ~np.isnan(found).any(axis=(1, 2))
-    if not seen.any():
+    if np.isnan(found).any(axis=(1, 2)).all():
         raise NoFaceError(f"{source}: no face found in any frame")
-    lo = np.nanmin(found[seen, :, :2], axis=(0, 1))
-    hi = np.nanmax(found[seen, :, :2], axis=(0, 1))
-    centre, side = (lo + hi) / 2, MARGIN * float(np.max(hi - lo))
-    scale = size / side
-    affine = np.array([[scale, 0, size / 2 - scale * centre[0]], [0, scale, size / 2 - scale * centre[1]]])
-    crops = [cv2.warpAffine(f, affine, (size, size), flags=cv2.INTER_AREA, borderMode=cv2.BORDER_REPLICATE)
-             for f in rgb]
-    name = Path(source).stem
-    path = Path(out_dir) / f"{name}_{size}.mp4"
+    x, y, side = crop_box(found, rgb[0].shape[1], rgb[0].shape[0])
+    crops = [cv2.resize(f[y:y + side, x:x + side], (size, size), interpolation=cv2.INTER_AREA) for f in rgb]
     write_lossless(path, crops, video.fps)
+    info.write_text(json.dumps({"source": str(source), "seconds": seconds, "fps": video.fps, "frames": len(crops),
+                                "box": {"x": x, "y": y, "side": side}}) + "\n")
     return load(name, path, video.fps)
 
 
 def load(name: str, path: Path, fps: float) -> Clip:
     """A prepared crop read back (what a worker process does instead of receiving the frames)."""
-    import av
-
-    with av.open(str(path)) as container:
-        frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    frames = read_video(path)
     return Clip(name, Path(path), fps, frames, track(frames))
 
 
+def read_video(path: Path) -> list:
+    """(H, W, 3) uint8 RGB frames of a video file, through PyAV."""
+    import av
+
+    with av.open(str(path)) as container:
+        return [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+
+
 def write_lossless(path: Path, frames: list, fps: float) -> None:
-    """(H, W, 3) uint8 RGB frames as lossless H.264 (4:2:0, QP 0) that OpenCV and PyAV read."""
+    """(H, W, 3) uint8 RGB frames as FFV1 in RGB (Matroska) that OpenCV and PyAV read back bit for bit;
+    checked: a crop that does not read back as written is an error, not an input."""
     from fractions import Fraction
 
     import av
 
     with av.open(str(path), "w") as container:
-        stream = container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
-        stream.width, stream.height = frames[0].shape[1], frames[0].shape[0]
-        stream.pix_fmt, stream.options = "yuv420p", {"qp": "0", "preset": "veryfast"}
+        stream = container.add_stream("ffv1", rate=Fraction(fps).limit_denominator(1001))
+        stream.width, stream.height, stream.pix_fmt = frames[0].shape[1], frames[0].shape[0], "bgr0"
         for rgb in frames:
-            container.mux(stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")))
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb24")))
         container.mux(stream.encode(None))
+    back = read_video(path)
+    if len(back) != len(frames) or not all(np.array_equal(a, b) for a, b in zip(frames, back)):
+        raise FdError(f"{path}: the lossless crop does not read back as written")
 
 
 def read_y4m(data: bytes) -> list:

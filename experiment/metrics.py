@@ -1,15 +1,21 @@
 """How close a decoded talking-face video is to its original.
 
-Keypoint measures run our tracker on both videos: the average keypoint distance
-(AKD) of talking-head codec papers, over the inter-ocular distance so that it
-does not depend on resolution, for the whole face and for the mouth alone, the
+Pixel measures take the whole decoded picture against the face crop every
+codec was given, as generative face video coding papers and the JVET tests
+do: PSNR as the mean of the R, G and B PSNRs, per frame; SSIM and MS-SSIM on
+luma (BT.601 Y); VMAF with libvmaf's default model through FFmpeg. Keypoint
+measures run our tracker on both videos: the average keypoint distance (AKD)
+of talking-head codec papers, over the inter-ocular distance so that it does
+not depend on resolution, for the whole face and for the mouth alone (also
+after a per-frame similarity alignment, which leaves shape and motion), the
 correlation of the mouth opening over time, and the motion fidelity of the
 mouth and jaw (sender/fidelity.py's measure, taken on the decoded video: how
 far each video's pose-free motion about its own rest frame is from the
-original's, over the original's motion). Pixel measures (PSNR, SSIM)
-are taken inside the face, where the codecs differ; the background is not
-what a face codec is for.
+original's, over the original's motion). The masked PSNR and SSIM serve
+benchmarks/bench_visibility.py, which measures inside the face.
 """
+
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -61,14 +67,6 @@ def aligned(decoded: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return np.einsum("tij,tnj->tni", m[:, :, :2], dec) + m[:, None, :, 2]
 
 
-def aligned_frames(frames: list, decoded: np.ndarray, reference: np.ndarray) -> list:
-    """Decoded (H, W, 3) frames warped by the similarity that fits their keypoints onto the
-    reference's, so that pixel measures compare faces and not where each codec draws them (a
-    frame without a face in either stays as it is)."""
-    return [cv2.warpAffine(f, m, (f.shape[1], f.shape[0]), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            for f, m in zip(frames, similarities(decoded, reference))]
-
-
 def opening_correlation(reference: np.ndarray, decoded: np.ndarray) -> float:
     """Pearson correlation of the mouth opening of two keypoint tracks (frames with a face in both)."""
     a, b = lip_gap(np.asarray(reference)[..., :2]), lip_gap(np.asarray(decoded)[..., :2])
@@ -111,14 +109,6 @@ def motion_fidelity(reference: np.ndarray, decoded: np.ndarray, fps: float) -> f
     return rms(dec_motion - ref_motion) / frozen if frozen > 0 else float("nan")
 
 
-def face_mask(landmarks: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) bool: inside the convex hull of one frame's (468, 2+) landmarks."""
-    mask = np.zeros(shape, np.uint8)
-    hull = cv2.convexHull(np.round(np.asarray(landmarks)[:, :2]).astype(np.int32))
-    cv2.fillConvexPoly(mask, hull, 1)
-    return mask.astype(bool)
-
-
 def psnr(reference: list, decoded: list, masks: list) -> float:
     """PSNR in dB over the masked pixels of all frames: (H, W, 3) uint8 frames, (H, W) bool masks."""
     err = sum(float(((r[m].astype(np.float64) - d[m]) ** 2).sum()) for r, d, m in zip(reference, decoded, masks))
@@ -128,17 +118,102 @@ def psnr(reference: list, decoded: list, masks: list) -> float:
     return float("inf") if err == 0 else float(10 * np.log10(255.0 ** 2 * count / err))
 
 
-def ssim(reference: list, decoded: list, masks: list) -> float:
-    """Mean SSIM (grey, 11x11 Gaussian window, sigma 1.5) over the masked pixels of all frames."""
-    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
+def ssim(reference: list, decoded: list, masks: list | None = None) -> float:
+    """Mean SSIM on luma (BT.601 Y; 11x11 Gaussian window, sigma 1.5) over the masked pixels of all
+    frames, or over every pixel without ``masks``."""
     total, count = 0.0, 0
-    for r, d, m in zip(reference, decoded, masks):
-        x = cv2.cvtColor(r, cv2.COLOR_RGB2GRAY).astype(np.float64)
-        y = cv2.cvtColor(d, cv2.COLOR_RGB2GRAY).astype(np.float64)
-        blur = lambda img: cv2.GaussianBlur(img, (11, 11), 1.5)  # noqa: E731
-        mx, my = blur(x), blur(y)
-        vx, vy, cxy = blur(x * x) - mx * mx, blur(y * y) - my * my, blur(x * y) - mx * my
-        smap = ((2 * mx * my + c1) * (2 * cxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2))
+    for i, (r, d) in enumerate(zip(reference, decoded)):
+        smap, _ = _ssim_maps(_luma(r), _luma(d))
+        m = np.ones(smap.shape, bool) if masks is None else masks[i]
         total += float(smap[m].sum())
         count += int(m.sum())
     return total / count if count else float("nan")
+
+
+#: Wang, Simoncelli and Bovik's (2003) weights of MS-SSIM's five scales, finest first.
+MS_SSIM_WEIGHTS = (0.0448, 0.2856, 0.3001, 0.2363, 0.1333)
+
+
+def ms_ssim(reference: list, decoded: list) -> float:
+    """Mean over frames of multi-scale SSIM on luma: the contrast-structure term at the four finer
+    scales and the whole SSIM at the coarsest, each scale half the size of the one before (2x2
+    means), weighted as Wang et al. (negative terms count as 0)."""
+    scores = []
+    for r, d in zip(reference, decoded):
+        x, y, score = _luma(r), _luma(d), 1.0
+        for level, weight in enumerate(MS_SSIM_WEIGHTS):
+            smap, cs = _ssim_maps(x, y)
+            last = level == len(MS_SSIM_WEIGHTS) - 1
+            score *= max(float((smap if last else cs).mean()), 0.0) ** weight
+            if not last:
+                half = (x.shape[1] // 2, x.shape[0] // 2)
+                x = cv2.resize(x[:2 * half[1], :2 * half[0]], half, interpolation=cv2.INTER_AREA)
+                y = cv2.resize(y[:2 * half[1], :2 * half[0]], half, interpolation=cv2.INTER_AREA)
+        scores.append(score)
+    return float(np.mean(scores))
+
+
+def _luma(rgb: np.ndarray) -> np.ndarray:
+    """BT.601 luma (0.299 R + 0.587 G + 0.114 B, full range) as float64."""
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float64)
+
+
+def _ssim_maps(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """SSIM map and its contrast-structure part of two grey float images (8-bit range)."""
+    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
+    blur = lambda img: cv2.GaussianBlur(img, (11, 11), 1.5)  # noqa: E731
+    mx, my = blur(x), blur(y)
+    vx, vy, cxy = blur(x * x) - mx * mx, blur(y * y) - my * my, blur(x * y) - mx * my
+    cs = (2 * cxy + c2) / (vx + vy + c2)
+    return (2 * mx * my + c1) / (mx * mx + my * my + c1) * cs, cs
+
+
+PSNR_CAP = 100.0  # dB for a channel with no error, so that identical frames give a number
+
+
+def psnr_rgb(reference: list, decoded: list) -> np.ndarray:
+    """Per-frame PSNR in dB of (H, W, 3) uint8 frames: the mean of the R, G and B PSNRs, each at most
+    PSNR_CAP."""
+    out = []
+    for r, d in zip(reference, decoded):
+        mse = ((r.astype(np.float64) - d) ** 2).mean(axis=(0, 1))
+        out.append(np.mean(np.minimum(10 * np.log10(255.0 ** 2 / np.maximum(mse, 1e-300)), PSNR_CAP)))
+    return np.array(out)
+
+
+def vmaf_available() -> None:
+    """A one-line error unless the FFmpeg in use has the libvmaf filter."""
+    from common.errors import FdError
+    from experiment.baselines import ffmpeg, has
+
+    if not has("filters", "libvmaf"):
+        raise FdError(f"VMAF: filter libvmaf is missing from {ffmpeg()}")
+
+
+def vmaf(reference: list, decoded: list, fps: float) -> float:
+    """Mean VMAF (libvmaf's default model, through FFmpeg's libvmaf filter) of (H, W, 3) uint8 RGB
+    frames, both converted to 4:2:0 as FFmpeg does by default."""
+    import json
+    import subprocess
+    import tempfile
+
+    from common.errors import FdError
+    from experiment.baselines import ffmpeg
+
+    vmaf_available()
+    height, width = reference[0].shape[:2]
+    raw = ["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{width}x{height}", "-r", f"{fps:g}", "-i"]
+    with tempfile.TemporaryDirectory(prefix="fd-vmaf-") as tmp:
+        paths = [Path(tmp) / "decoded.rgb", Path(tmp) / "reference.rgb", Path(tmp) / "vmaf.json"]
+        for path, frames in zip(paths, (decoded, reference)):
+            with open(path, "wb") as f:
+                for frame in frames:
+                    f.write(np.ascontiguousarray(frame).tobytes())
+        done = subprocess.run([ffmpeg(), "-hide_banner", "-loglevel", "error", *raw, str(paths[0]), *raw,
+                               str(paths[1]), "-lavfi", "[0:v]format=yuv420p[d];[1:v]format=yuv420p[r];"
+                               f"[d][r]libvmaf=log_fmt=json:log_path={paths[2]}:n_threads=1", "-f", "null", "-"],
+                              capture_output=True, stdin=subprocess.DEVNULL)
+        if done.returncode != 0:
+            lines = done.stderr.decode(errors="replace").strip().splitlines() or ["(no message)"]
+            raise FdError(f"VMAF: ffmpeg failed: {lines[-1]}")
+        return float(json.loads(paths[2].read_text())["pooled_metrics"]["vmaf"]["mean"])

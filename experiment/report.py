@@ -8,15 +8,18 @@ import numpy as np
 
 #: metric column -> (axis label, higher is better)
 PLOTTED = {
-    "akd_aligned": ("AKD after alignment (÷ inter-ocular distance)", False),
+    "psnr": ("PSNR, mean of R, G, B (dB)", True),
+    "psnr_p5": ("PSNR, 5th percentile over frames (dB)", True),
+    "ssim": ("SSIM (luma)", True),
+    "ms_ssim": ("MS-SSIM (luma)", True),
+    "vmaf": ("VMAF (default model)", True),
+    "akd": ("AKD (÷ inter-ocular distance)", False),
+    "mouth_akd": ("mouth AKD (÷ inter-ocular distance)", False),
     "mouth_akd_aligned": ("mouth AKD after alignment (÷ inter-ocular distance)", False),
     "opening_corr": ("mouth-opening correlation", True),
     "motion_fidelity": ("mouth and jaw motion error (÷ motion; 0 perfect, 1 frozen)", False),
-    "psnr_face": ("PSNR in the face (dB)", True),
-    "ssim_face": ("SSIM in the face", True),
-    "psnr_face_aligned": ("PSNR in the face after alignment (dB)", True),
-    "ssim_face_aligned": ("SSIM in the face after alignment", True),
 }
+OVERVIEW = ("vmaf", "psnr", "ms_ssim", "mouth_akd")  # the four panels of overview_<size>.png
 
 
 def write_rows(rows: list[dict], out: Path) -> None:
@@ -29,8 +32,40 @@ def write_rows(rows: list[dict], out: Path) -> None:
     (out / "results.json").write_text(json.dumps(rows, indent=1, default=float) + "\n")
 
 
+def curves(rows: list[dict], size: int, metric: str) -> dict:
+    """codec -> (x kbit/s, y) means over the clips of each setting, in rate order; our runs also as
+    '<codec> + one-off' with the one-off bytes spread over 250 frames."""
+    out = {}
+    for codec in sorted({r["codec"] for r in rows}):
+        for rate, suffix in (("bitrate_bps", ""), ("bitrate_oneoff_bps", " + one-off")):
+            if suffix and not codec.startswith("ours"):
+                continue
+            points = []
+            for setting in sorted({r["setting"] for r in rows if r["codec"] == codec}):
+                same = [r for r in rows if r["codec"] == codec and r["setting"] == setting and r["size"] == size
+                        and np.isfinite(r[metric])]
+                if same:
+                    points.append((np.mean([r[rate] for r in same]) / 1000, np.mean([r[metric] for r in same])))
+            if points:
+                out[codec + suffix] = tuple(np.array(v) for v in zip(*sorted(points)))
+    return out
+
+
+def _draw(ax, rows: list[dict], size: int, metric: str, colours: dict) -> None:
+    """One measure against kbit/s (log axis), a line per codec, means over the clips."""
+    for name, (x, y) in curves(rows, size, metric).items():
+        codec = name.removesuffix(" + one-off")
+        ax.plot(x, y, "o--" if name != codec else "o-", color=colours[codec], alpha=0.85, label=name,
+                markersize=4)
+    ax.set_xscale("log")
+    ax.set_xlabel("kbit/s (log)")
+    ax.set_ylabel(PLOTTED[metric][0])
+    ax.grid(True, which="both", alpha=0.3)
+
+
 def plot(rows: list[dict], out: Path) -> list[Path]:
-    """One PNG per metric and output size: every codec on one chart against bitrate (log scale)."""
+    """A PNG per measure and size, every codec on one chart against kbit/s on a log axis (means over the
+    clips), and overview_<size>.png with four of them."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -38,31 +73,74 @@ def plot(rows: list[dict], out: Path) -> list[Path]:
 
     written = []
     codecs = sorted({r["codec"] for r in rows})
-    colours = dict(zip(codecs, plt.cm.tab20(np.arange(len(codecs)) % 20)))
+    colours = dict(zip(codecs, plt.cm.tab10(np.arange(len(codecs)) % 10)))
+    clips = len({r["clip"] for r in rows})
     for size in sorted({r["size"] for r in rows}):
         for metric, (label, _) in PLOTTED.items():
             fig, ax = plt.subplots(figsize=(7, 4.5))
-            for codec in codecs:
-                for clip in sorted({r["clip"] for r in rows}):
-                    pts = sorted((r["bitrate_bps"], r[metric]) for r in rows
-                                 if r["codec"] == codec and r["clip"] == clip and r["size"] == size
-                                 and np.isfinite(r[metric]))
-                    if pts:
-                        x, y = zip(*pts)
-                        ax.plot(np.array(x) / 1000, y, "o-", color=colours[codec], alpha=0.8,
-                                label=codec if clip == min(r["clip"] for r in rows if r["codec"] == codec) else None)
-            ax.set_xscale("log")
-            ax.set_xlabel("bitrate (kbit/s, per-frame stream; one-off bytes apart)")
-            ax.set_ylabel(label)
-            ax.set_title(f"{label} at {size}x{size}")
-            ax.grid(True, which="both", alpha=0.3)
+            _draw(ax, rows, size, metric, colours)
+            ax.set_title(f"{label} at {size}x{size}, mean of {clips} clip(s)")
             ax.legend(fontsize=8)
-            path = out / f"{metric}_{size}.png"
-            fig.tight_layout()
-            fig.savefig(path, dpi=110)
-            plt.close(fig)
-            written.append(path)
+            written.append(_save(fig, out / f"{metric}_{size}.png"))
+        fig, axes = plt.subplots(2, 2, figsize=(12, 8))
+        for ax, metric in zip(axes.flat, OVERVIEW):
+            _draw(ax, rows, size, metric, colours)
+        axes.flat[0].legend(fontsize=8)
+        fig.suptitle(f"Whole decoded picture against the {size}x{size} face crop, mean of {clips} clip(s); "
+                     "dashed: ours with the one-off bytes spread over 250 frames")
+        written.append(_save(fig, out / f"overview_{size}.png"))
     return written
+
+
+def _save(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+TABLED = ("psnr", "psnr_p5", "ssim", "ms_ssim", "vmaf", "mouth_akd", "opening_corr", "faces_found")
+
+
+def table(rows: list[dict]) -> str:
+    """Markdown: per size, our default settings (fd-send's auto parameters, quality 3, own face) and
+    each baseline at its floor (its coarsest setting) and at the setting whose rate is nearest 3 times
+    the floor's; means over the clips."""
+    def mean(same: list, key: str) -> float:
+        return float(np.mean([r[key] for r in same]))
+
+    head = ("| size | codec, setting | kbit/s (+ one-off) | PSNR dB | PSNR p5 | SSIM | MS-SSIM | VMAF | mouth AKD "
+            "| opening corr. | faces found | encode / decode fps |\n" + "|---" * 12 + "|\n")
+    lines = []
+    for size in sorted({r["size"] for r in rows}):
+        at = [r for r in rows if r["size"] == size]
+        picks = []
+        ours = [r for r in at if r["codec"] == "ours-auto-own" and r["setting"] == "q3"]
+        if ours:
+            picks.append(("ours, default (auto, q3, own face)", ours))
+        for codec in sorted({r["codec"] for r in at if not r["codec"].startswith("ours")}):
+            settings: dict[str, list] = {}
+            for r in at:
+                if r["codec"] == codec:
+                    settings.setdefault(r["setting"], []).append(r)
+            by_rate = sorted(settings.items(), key=lambda kv: mean(kv[1], "bitrate_bps"))
+            floor = by_rate[0]
+            picks.append((f"{codec} {floor[0]} (floor)", floor[1]))
+            near = min(by_rate[1:], key=lambda kv: abs(mean(kv[1], "bitrate_bps") - 3 * mean(floor[1], "bitrate_bps")),
+                       default=None)
+            if near:
+                picks.append((f"{codec} {near[0]} (~3x floor)", near[1]))
+        for label, same in picks:
+            rate = f"{mean(same, 'bitrate_bps') / 1000:.2f}"
+            if same[0]["oneoff_bytes"]:
+                rate += f" ({mean(same, 'bitrate_oneoff_bps') / 1000:.2f})"
+            cells = [f"{mean(same, k):.3f}" if k in ("ssim", "ms_ssim", "mouth_akd", "opening_corr", "faces_found")
+                     else f"{mean(same, k):.2f}" for k in TABLED]
+            lines.append(f"| {size} | {label} | {rate} | " + " | ".join(cells) +
+                         f" | {mean(same, 'encode_fps'):.0f} / {mean(same, 'decode_fps'):.0f} |")
+    return head + "\n".join(lines) + "\n"
 
 
 def side_by_side(path: Path, fps: float, columns: list[tuple[str, list]]) -> None:

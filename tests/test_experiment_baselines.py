@@ -1,10 +1,12 @@
-"""Conventional baselines: every frame comes back, and more bits buy a closer picture."""
+"""Conventional baselines: every frame comes back, the stream file is the bytes counted, more bits buy a
+closer picture, and a missing encoder or a decoder that drops frames is refused in one line."""
 
 import numpy as np
 import pytest
 
-from common.errors import InputError
-from experiment.baselines import CODECS, encode_decode
+from common.errors import FdError, InputError
+from experiment import baselines
+from experiment.baselines import CODECS, encode_decode, ladder
 
 
 def moving_clip(n=12, size=64):
@@ -24,17 +26,38 @@ def mse(a, b):
 
 
 @pytest.mark.parametrize("codec", sorted(CODECS))
-def test_every_frame_comes_back_and_bits_buy_quality(codec):
+def test_every_frame_comes_back_and_bits_buy_quality(codec, tmp_path):
     clip = moving_clip()
-    low, high = (encode_decode(clip, 25.0, codec, bps) for bps in (20_000, 400_000))
-    for coded in (low, high):
+    floor, fine = (encode_decode(clip, 25.0, codec, setting, tmp_path / f"{setting}.{CODECS[codec].suffix}")
+                   for setting in (CODECS[codec].coarsest, CODECS[codec].coarsest - 30))
+    for coded in (floor, fine):
         assert len(coded.frames) == len(clip) and coded.frames[0].shape == clip[0].shape
-        assert coded.coded_bytes > 0
+        assert coded.coded_bytes == coded.path.stat().st_size > 0
         assert coded.bitrate(25.0) == pytest.approx(8 * coded.coded_bytes * 25.0 / len(clip))
-    assert high.coded_bytes > low.coded_bytes
-    assert mse(clip, high.frames) < mse(clip, low.frames)
+    assert fine.coded_bytes > floor.coded_bytes
+    assert mse(clip, fine.frames) < mse(clip, floor.frames)
 
 
-def test_unknown_codec_is_one_line_error():
+def test_the_ladder_starts_at_the_floor():
+    assert ladder("x264", 3) == [51, 48, 45]
+    assert ladder("av1", 1) == [63]
+
+
+def test_unknown_codec_is_one_line_error(tmp_path):
     with pytest.raises(InputError, match="unknown baseline codec 'vp8'"):
-        encode_decode(moving_clip(2), 25.0, "vp8", 10_000)
+        encode_decode(moving_clip(2), 25.0, "vp8", 10, tmp_path / "x")
+
+
+def test_missing_encoder_is_a_one_line_error_naming_it(monkeypatch, tmp_path):
+    listed = baselines._listed("encoders")
+    monkeypatch.setattr(baselines, "_listed", lambda kind: listed.replace(" libx265 ", " gone "))
+    with pytest.raises(FdError, match="^baseline x265: encoder libx265 is missing from ") as error:
+        encode_decode(moving_clip(2), 25.0, "x265", 51, tmp_path / "x.265")
+    assert "\n" not in str(error.value)
+
+
+def test_a_decoder_that_drops_frames_is_refused(monkeypatch, tmp_path):
+    decode = baselines.decode
+    monkeypatch.setattr(baselines, "decode", lambda *args: decode(*args)[:-1])
+    with pytest.raises(FdError, match="^baseline x264: its decoder gave 3 frames for 4; refused$"):
+        encode_decode(moving_clip(4), 25.0, "x264", 51, tmp_path / "x.264")
