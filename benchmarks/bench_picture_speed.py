@@ -2,8 +2,9 @@
 
 A face enrolled from the bundled clip, its reference picture scaled to SIZE,
 drawn with talking parameters (the jaw and lips moving, the head turning and
-moving); the deformation, placement and rendering are timed together, as
-fd-recv runs them per frame.
+moving), with a still camera and with one that pans, zooms and rolls every
+frame (the picture warped each time); the deformation, placement and rendering
+are timed together, as fd-recv runs them per frame.
 
     .venv/bin/python benchmarks/bench_picture_speed.py [--size 512] [--frames 300]
 """
@@ -23,6 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from codec.deform import GLOBAL_PARAMS  # noqa: E402
 from codec.face_file import load_face_file  # noqa: E402
 from codec.face_model import ReferencePicture  # noqa: E402
 from codec.picture import Placement  # noqa: E402
@@ -52,20 +54,22 @@ def main() -> None:
     place = Placement(place.scale * factor, place.rotation, (place.shift - [x0, -y0, 0.0]) * factor)
     square = cv2.resize(image[y0:y0 + side, x0:x0 + side], (args.size, args.size), interpolation=cv2.INTER_LINEAR)
     face = replace(face, picture=ReferencePicture(square, place.matrix()))
-    names = ("theta", "v2y", "v3y", "rx", "ry", "rz", "tx", "ty", "tz")
+    names = ("theta", "v2y", "v3y", "rx", "ry", "rz", "tx", "ty", "tz") + GLOBAL_PARAMS
     view = PictureView(Header(25.0, names, steps_for(names), face.content_id), face, (args.size, args.size))
     t = np.arange(args.frames) / 25.0
-    params = np.column_stack([8 + 8 * np.sin(5 * t), 0.01 * np.sin(7 * t), -0.01 * np.sin(6 * t),
-                              4 * np.sin(t), 10 * np.sin(0.7 * t), 2 * np.sin(0.5 * t),
-                              0.05 * np.sin(0.9 * t), 0.03 * np.sin(1.1 * t), 0.1 * np.sin(0.3 * t)])
-    view.render(params[0])  # compile
-    start, cpu = time.perf_counter(), time.process_time()
-    for row in params:
-        view.render(row)
-    ms = (time.process_time() - cpu) / len(params) * 1000
-    wall = (time.perf_counter() - start) / len(params) * 1000
-    print(f"whole picture {args.size}x{args.size}: {ms:.2f} ms of CPU per frame ({1000 / ms:.0f} frames/s on "
-          f"one core; {wall:.2f} ms wall clock on this machine now)")
+    talking = np.column_stack([8 + 8 * np.sin(5 * t), 0.01 * np.sin(7 * t), -0.01 * np.sin(6 * t),
+                               4 * np.sin(t), 10 * np.sin(0.7 * t), 2 * np.sin(0.5 * t),
+                               0.05 * np.sin(0.9 * t), 0.03 * np.sin(1.1 * t), 0.1 * np.sin(0.3 * t)])
+    camera = np.column_stack([0.05 * np.sin(0.4 * t), 0.02 * np.sin(0.3 * t), 0.03 * np.sin(0.2 * t), np.sin(t)])
+    view.render(np.r_[talking[0], camera[0]])  # compile
+    for what, moving in (("still camera", 0.0), ("moving camera", 1.0)):
+        start, cpu = time.perf_counter(), time.process_time()
+        for row in np.column_stack([talking, moving * camera]):
+            view.render(row)
+        ms = (time.process_time() - cpu) / len(t) * 1000
+        wall = (time.perf_counter() - start) / len(t) * 1000
+        print(f"whole picture {args.size}x{args.size}, {what}: {ms:.2f} ms of CPU per frame ({1000 / ms:.0f} "
+              f"frames/s on one core; {wall:.2f} ms wall clock on this machine now)")
 
 
 if __name__ == "__main__":

@@ -33,9 +33,12 @@ PAPER_PARAMS: tuple[str, ...] = (
 FREE = ("F2", "F3", "F8", "F9")  # sent, in PAPER_PARAMS order
 JAW_FOLLOWING = ("F4", "F14", "F15")
 POSE_PARAMS = ("rx", "ry", "rz", "tx", "ty", "tz")  # rotation vector (degrees), translation (base-face units)
+#: The whole frame's motion against the reference picture (codec/picture.global_matrix): shift x, y
+#: (face heights), zoom - 1, roll (degrees). The receiver moves the picture by them; the face ignores them.
+GLOBAL_PARAMS = ("gx", "gy", "gs", "gr")
 #: Newer names come last so that the older layouts keep their slots.
 EXTENDED_PARAMS: tuple[str, ...] = (PAPER_PARAMS + UPPER_PARAMS + GAZE_PARAMS + POSE_PARAMS + MOUTH_PARAMS
-                                    + BASIS_PARAMS)
+                                    + BASIS_PARAMS + GLOBAL_PARAMS)
 HEAD_DEPTH = 0.6  # the head turns about a point this far behind the face's bounding-box centre
 _UPPER = slice(len(PAPER_PARAMS), len(PAPER_PARAMS) + len(UPPER_PARAMS))
 _GAZE = slice(_UPPER.stop, _UPPER.stop + len(GAZE_PARAMS))

@@ -16,7 +16,13 @@ adds the person's whole reference picture (codec/picture.py): ``picture`` in the
 JSON is [bytes, width, height] and ``projection`` the (3, 4) similarity from
 model points to its pixels (x right, y down) and depth; optionally their open
 mouth, ``mouth`` [bytes, width, height] after the picture, with ``mouth_points``
-the pixel positions in it of the mouth opening's vertices. The face
+the pixel positions in it of the mouth opening's vertices. Version 4 adds ``rings``
+in the JSON: how far each ring vertex around the face follows the head
+(codec/picture.SceneMesh, sender/motion_global.ring_weights), 0-255 for 0-1, and
+takes fewer bytes: ``meta`` may be "base" (the generic face's, codec/data), the
+motion basis's patterns are <f2, and a file with a reference picture may leave the
+texture out (the face is then textured by the picture where the projection puts
+it: codec/picture.face_texture). The face
 id is the sha256 of the whole file (``sha256sum face.fdface`` prints it): what
 the stream header names is exactly what the receiver holds, bit for bit.
 
@@ -33,6 +39,7 @@ import json
 import os
 import struct
 from dataclasses import replace
+from functools import cache
 from pathlib import Path
 
 import cv2
@@ -50,13 +57,13 @@ from codec.face_model import (
     normalise,
 )
 from codec.motion_basis import MAX_COMPONENTS, OVER, MotionBasis
-from codec.picture import Placement
+from codec.picture import RINGS, Placement, outer_loop
 from common.errors import InputError
 from common.keys import derive
 
 MAGIC = b"FDFACE"
-VERSION = 3
-READS = (1, 2, 3)
+VERSION = 4
+READS = (1, 2, 3, 4)
 MAX_FILE = 16 << 20  # the stream header's limit for an in-band model
 MAX_FACES = 4096
 MAX_TEXTURE_SIDE = 2048
@@ -83,8 +90,8 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
     saved again is re-compressed and so gets a new id.
     """
     texture = _encode_image(face.texture, texture_format, quality, "texture") if face.texture is not None else b""
-    info = {"vertices": len(face.vertices), "faces": len(face.faces), "texture": len(texture),
-            "meta": face.meta}
+    info: dict[str, object] = {"vertices": len(face.vertices), "faces": len(face.faces), "texture": len(texture),
+                               "meta": "base" if face.meta == _base_meta() else face.meta}
     picture = b""
     if face.picture is not None:
         image = face.picture.image
@@ -97,11 +104,13 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
             info["mouth"] = [len(data), mouth.shape[1], mouth.shape[0]]
             info["mouth_points"] = np.asarray(face.picture.mouth_points, dtype=np.float64).tolist()
             picture += data
+        if face.picture.ring_weights is not None:
+            info["rings"] = np.rint(255 * np.clip(face.picture.ring_weights, 0.0, 1.0)).astype(int).tolist()
     motion = b""
     if face.motion is not None:
         info["motion"] = [len(face.motion.vertices), face.motion.components, face.motion.over]
         motion = (np.ascontiguousarray(face.motion.vertices, dtype="<u2").tobytes()
-                  + np.ascontiguousarray(face.motion.vectors, dtype="<f4").tobytes())
+                  + np.ascontiguousarray(face.motion.vectors, dtype="<f2").tobytes())
     text = json.dumps(info, sort_keys=True, separators=(",", ":")).encode()
     return b"".join([
         _PREFIX.pack(MAGIC, VERSION, 0, len(text)), text,
@@ -168,14 +177,18 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
         projection = np.array(info.get("projection", np.zeros((3, 4))), dtype=np.float64)
         n_mouth, mouth_w, mouth_h = (int(x) for x in info.get("mouth", (0, 0, 0)))
         mouth_points = np.array(info.get("mouth_points", np.zeros((0, 2))), dtype=np.float64)
-    except (ValueError, KeyError, TypeError):
+        rings = None if "rings" not in info else np.array(info["rings"], dtype=np.int64)
+    except (ValueError, KeyError, TypeError, OverflowError):
         raise bad("unreadable description") from None
     if n != N_LANDMARKS or not 0 < m <= MAX_FACES or n_tex < 0:
         raise bad(f"{n} vertices, {m} triangles")
     if (k, c) != (0, 0) and not (0 < k <= n and 0 < c <= MAX_COMPONENTS and over in OVER):
         raise bad(f"motion basis of {c} patterns over {k} vertices")
+    if version >= 4 and meta == "base":
+        meta = _base_meta()
     pos = _PREFIX.size + n_text
-    n_motion = 2 * k + 12 * c * k
+    pattern = "<f2" if version >= 4 else "<f4"
+    n_motion = 2 * k + 3 * np.dtype(pattern).itemsize * c * k
     if n_pic < 0 or (n_pic and not all(PICTURE_SIDES[0] <= x <= PICTURE_SIDES[1] for x in (pic_w, pic_h))):
         raise bad(f"reference picture of {pic_w}x{pic_h} pixels")
     if n_mouth < 0 or (n_mouth and not (n_pic and all(0 < x <= s for x, s in ((mouth_w, pic_w), (mouth_h, pic_h))))):
@@ -188,22 +201,24 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
     if not (np.all(np.isfinite(vertices)) and np.all(np.abs(vertices) < 10) and np.all(np.isfinite(uv))
             and faces.max() < n):
         raise bad("vertex, texture coordinate or triangle out of range")
-    motion = _decode_motion(data, pos + 20 * n + 6 * m, k, c, over, bad) if k else None
+    motion = _decode_motion(data, pos + 20 * n + 6 * m, k, c, over, pattern, bad) if k else None
     end = len(data) - n_pic - n_mouth
     texture = _decode_texture(data[end - n_tex:end], bad) if n_tex else None
     face = build_face(vertices, faces, uv, meta, face_id(data), texture, origin, motion)
     if not n_pic:
         return face
     picture = _decode_picture(data[end:end + n_pic], (pic_w, pic_h), projection, bad)
+    if rings is not None:
+        picture = replace(picture, ring_weights=_ring_weights(rings, faces, bad))
     if n_mouth:
         picture = replace(picture, mouth=_decode_image(data[end + n_pic:], (mouth_w, mouth_h), "open mouth", bad),
                           mouth_points=_mouth_points(mouth_points, face, (mouth_w, mouth_h), bad))
     return replace(face, picture=picture)
 
 
-def _decode_motion(data: bytes, pos: int, k: int, c: int, over: str, bad) -> MotionBasis:
+def _decode_motion(data: bytes, pos: int, k: int, c: int, over: str, pattern: str, bad) -> MotionBasis:
     vertices = np.frombuffer(data, "<u2", k, pos).astype(np.int64)
-    vectors = np.frombuffer(data, "<f4", 3 * c * k, pos + 2 * k).reshape(c, k, 3).astype(np.float64)
+    vectors = np.frombuffer(data, pattern, 3 * c * k, pos + 2 * k).reshape(c, k, 3).astype(np.float64)
     if vertices.max() >= N_LANDMARKS or len(set(vertices.tolist())) != k or not np.all(np.abs(vectors) <= 10):
         raise bad("motion basis out of range")
     return MotionBasis(vertices, vectors, over)
@@ -244,6 +259,19 @@ def _mouth_points(points: np.ndarray, face: BaseFace, size: tuple[int, int], bad
             or np.any(points < -1) or np.any(points > np.array(size) + 1):
         raise bad("open mouth's points do not fit it")
     return points
+
+
+@cache
+def _base_meta() -> dict:
+    """The generic face's feature points, regions and loops, which most face files share."""
+    return load_base_face().meta
+
+
+def _ring_weights(rings: np.ndarray, faces: np.ndarray, bad) -> np.ndarray:
+    """The rings' weights in 0..1, refused unless one byte per ring vertex of the face's scene mesh."""
+    if rings.shape != (len(RINGS) * len(outer_loop(faces)),) or np.any(rings < 0) or np.any(rings > 255):
+        raise bad("ring weights do not fit the face")
+    return rings / 255.0
 
 
 def _file_key(key: bytes, salt: bytes) -> AESGCM:

@@ -67,12 +67,15 @@ class ReferencePicture:
     """image (H, W, 3) uint8 RGB: a whole frame of the person; projection (3, 4) float64: homogeneous
     model points to (pixel x, pixel y down, depth toward the viewer) in it, a similarity; mouth
     (h, w, 3) uint8 RGB or None: their open mouth, from another frame, and mouth_points (k, 2)
-    float64: where the vertices of the mouth opening (``mouth_vertices``) are in it, in pixels."""
+    float64: where the vertices of the mouth opening (``mouth_vertices``) are in it, in pixels;
+    ring_weights (rings x boundary,) float64 in 0..1 or None: how far each vertex of the receiver's
+    rings around the face follows the head (codec/picture.SceneMesh), as enrolment measured it."""
 
     image: np.ndarray
     projection: np.ndarray
     mouth: np.ndarray | None = None
     mouth_points: np.ndarray | None = None
+    ring_weights: np.ndarray | None = None
 
 
 def mouth_vertices(face: BaseFace) -> np.ndarray:

@@ -102,6 +102,43 @@ def frame_placement(reference: Placement, pose: np.ndarray, pivot: np.ndarray) -
     return Placement(scale, rotation, at - scale * rotation @ pivot)
 
 
+def global_matrix(motion: np.ndarray, reference: Placement, size: tuple[int, int]) -> np.ndarray | None:
+    """(2, 3) pixel map (x right, y down) from the reference picture to the frame for the global
+    motion ``motion`` = (gx, gy, gs, gr): a similarity about the picture's centre of scale 1 + gs,
+    turn gr degrees (counter-clockwise as seen), then a shift of (gx, gy) face heights of the
+    reference (y up); None for no motion, so that a still camera leaves the picture bit-exact."""
+    gx, gy, gs, gr = (float(v) for v in motion)
+    if gx == gy == gs == gr == 0.0:
+        return None
+    angle = np.radians(gr)
+    linear = (1.0 + gs) * np.array([[np.cos(angle), np.sin(angle)], [-np.sin(angle), np.cos(angle)]])
+    centre = 0.5 * np.asarray(size, dtype=np.float64)
+    shift = centre + reference.scale * np.array([gx, -gy]) - linear @ centre
+    return np.column_stack([linear, shift])
+
+
+def global_motion(matrix: np.ndarray, reference: Placement, size: tuple[int, int]) -> np.ndarray:
+    """(4,) gx, gy, gs, gr of a (2, 3) similarity pixel map: :func:`global_matrix`'s inverse."""
+    m = np.asarray(matrix, dtype=np.float64)
+    scale = float(np.sqrt(max(np.linalg.det(m[:, :2]), 1e-12)))
+    centre = 0.5 * np.asarray(size, dtype=np.float64)
+    shift = m[:, :2] @ centre + m[:, 2] - centre
+    return np.array([shift[0] / reference.scale, -shift[1] / reference.scale, scale - 1.0,
+                     np.degrees(np.arctan2(m[0, 1], m[0, 0]))])
+
+
+def face_texture(face: BaseFace) -> tuple[np.ndarray | None, np.ndarray]:
+    """(texture or None, (n, 2) uv with v up) to draw the face alone: its own texture, else its
+    reference picture where the picture's projection puts each vertex (enrolment leaves the texture
+    out when it keeps the picture: the same frame)."""
+    picture = face.picture
+    if face.texture is not None or picture is None:
+        return face.texture, face.uv
+    height, width = picture.image.shape[:2]
+    placed = Placement.from_matrix(picture.projection).apply(face.vertices)  # y up: minus the row
+    return picture.image, np.column_stack([placed[:, 0] / width, 1.0 + placed[:, 1] / height])
+
+
 def outer_loop(faces: np.ndarray) -> np.ndarray:
     """(L,) vertex indices of the mesh's longest boundary loop (edges of one triangle only), in order."""
     edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
@@ -156,7 +193,11 @@ class SceneMesh:
         up = np.tile(np.clip((edge[:, 1] - centre[1]) / np.abs(edge[:, 1] - centre[1]).max(), 0.0, 1.0), len(radii))
         start = 1.0 + (HAIR_START - 1.0) * up  # above the eyes the hair turns with the head further out
         t = np.clip((np.repeat(radii, count) - start) / (radii[-1] - start), 0.0, 1.0)
-        self._weight = (1.0 - t * t * (3.0 - 2.0 * t))[:, None]  # smoothstep: 1 .. 0
+        self._default = 1.0 - t * t * (3.0 - 2.0 * t)  # smoothstep: 1 .. 0
+        learnt = picture.ring_weights
+        use = learnt is not None and len(learnt) == len(self._default)
+        self._weight = (np.asarray(learnt, dtype=np.float64) if use else self._default)[:, None]
+        self.loop = loop
         index = np.concatenate([loop, n + np.arange(len(radii) * count)]).reshape(len(radii) + 1, count)
         inner, outer = index[:-1], index[1:]
         inner_next, outer_next = np.roll(inner, -1, axis=1), np.roll(outer, -1, axis=1)
@@ -189,11 +230,28 @@ class SceneMesh:
         self.mouth_faces = np.concatenate([mouth, np.zeros(len(strips), bool)])
         self.uv = np.column_stack([pixels[:, 0] / width, 1.0 - pixels[:, 1] / height])
 
-    def positions(self, deformed: np.ndarray, frame: Placement) -> np.ndarray:
+    def default_weights(self) -> np.ndarray:
+        """(rings x boundary,) how far each ring vertex follows the head without measured weights:
+        a smoothstep from 1 at the face (1.3 above its centre, the hair) to 0 at the outermost ring."""
+        return self._default.copy()
+
+    def ring_pixels(self, frame: Placement | None = None) -> np.ndarray:
+        """(rings x boundary, 2) pixels (x right, y down) of the ring vertices at rest, or moving fully
+        with a rigid head placed by ``frame``."""
+        points = self._ring_rest if frame is None else frame.apply(self._ring_model)
+        return (points * _FLIP)[:, :2]
+
+    def positions(self, deformed: np.ndarray, frame: Placement, still: np.ndarray | None = None) -> np.ndarray:
         """(vertices, 3) picture-axes positions: the deformed (pose-free) face placed by ``frame``;
         each ring vertex moved as its boundary vertex is (with the deformation: the neck stretches
-        with an opening jaw instead of tearing from it), times the ring's weight."""
+        with an opening jaw instead of tearing from it), times the ring's weight, the rest of the
+        way by ``still`` (the frame's global motion, a (2, 3) pixel map; None: none), which moves
+        the background past the outermost ring."""
         face = frame.apply(deformed)
         moved = self._ring_model + (deformed[self._edge] - self._rest[self._edge])
-        rings = self._ring_rest + self._weight * (frame.apply(moved) - self._ring_rest)
+        anchor = self._ring_rest
+        if still is not None:
+            pixels = (anchor * _FLIP)[:, :2] @ still[:, :2].T + still[:, 2]
+            anchor = np.column_stack([pixels * _FLIP[:2], anchor[:, 2]])
+        rings = anchor + self._weight * (frame.apply(moved) - anchor)
         return np.concatenate([face, rings, face[self._mouth]])

@@ -22,7 +22,7 @@ DEFAULT_QUALITY = 3
 ANGLE_STEP = 0.25
 VECTOR_STEP = 0.002
 LID_STEP = 0.05
-ANGLES = ("theta", "rx", "ry", "rz", "gaze_yaw", "gaze_pitch")
+ANGLES = ("theta", "rx", "ry", "rz", "gaze_yaw", "gaze_pitch", "gr")
 LIDS = ("lid_l", "lid_r")
 #: Default dead zone in steps: one step, as the sender's hold was before it moved here (then fixed at
 #: level 3's steps); 0.5 is plain rounding. Bits and errors of each are in docs/bitstream.md.

@@ -8,9 +8,9 @@ picture warped by the moving face (PictureView, codec/picture.py).
 import numpy as np
 
 from codec.camera import Camera
-from codec.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer
+from codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, Deformer
 from codec.face_model import BaseFace
-from codec.picture import SceneMesh, frame_placement
+from codec.picture import SceneMesh, face_texture, frame_placement, global_matrix
 from codec.render import Material, Renderer
 from common.errors import BitstreamError, InputError
 from protocol.stream import Header
@@ -62,10 +62,11 @@ def open_view(look: str, header: Header, face: BaseFace, size: tuple[int, int], 
 def face_renderer(face: BaseFace, size: tuple[int, int], textured: bool = True) -> Renderer:
     """The receiver's look: the default lights and a dark mouth; a personal model (with a
     texture) shows its own eyes from the photo, the plain shaded face gets painted ones."""
-    textured = textured and face.texture is not None
+    texture, uv = face_texture(face)
+    textured = textured and texture is not None
     return Renderer(face.faces, size=size, mouth_faces=face.mouth_faces,
                     eye_faces=None if textured else face.eye_faces, background=BACKGROUND,
-                    uv=face.uv if textured else None, texture=face.texture if textured else None)
+                    uv=uv if textured else None, texture=texture if textured else None)
 
 
 class FaceView:
@@ -108,12 +109,14 @@ class FaceView:
 
 
 _POSE = [EXTENDED_PARAMS.index(n) for n in POSE_PARAMS]
+_GLOBAL = [EXTENDED_PARAMS.index(n) for n in GLOBAL_PARAMS]
 
 
 class PictureView(FaceView):
     """The whole picture: the reference picture, warped by the face deformed with the expression
     and placed by the head pose relative to the reference (codec/picture.py), at ``size`` (the
-    picture and its projection scaled to it). Unlit: the picture's own light."""
+    picture and its projection scaled to it), the picture moved by the frame's global motion (the
+    camera's). Unlit: the picture's own light."""
 
     def _setup(self, face: BaseFace, size: tuple[int, int], textured: bool) -> None:
         import cv2
@@ -128,6 +131,8 @@ class PictureView(FaceView):
         self._scale = np.array([sx, sy, np.sqrt(sx * sy)])
         background = picture.image if (w, h) == (width, height) else \
             cv2.resize(picture.image, (w, h), interpolation=cv2.INTER_AREA if sx * sy < 1 else cv2.INTER_LINEAR)
+        self._picture, self._picture_size, self._still = picture.image, (width, height), background
+        self._moved: np.ndarray | None = None  # the global motion the renderer's background has
         self._renderer = Renderer(self._scene.triangles, size=size, material=Material(ambient=1.0, specular=0.0),
                                   lights=(), background=background, uv=self._scene.uv, texture=self._scene.texture,
                                   mouth_faces=self._scene.mouth_faces)
@@ -142,4 +147,23 @@ class PictureView(FaceView):
         full[_POSE] = 0.0
         deformed = self._deformer.deform_extended(full, f3_with_jaw=self._f3_with_jaw)
         frame = frame_placement(self._scene.reference, pose, self._scene.pivot)
-        return self._renderer.render(self._scene.positions(deformed, frame) * self._scale, self._camera)[0]
+        still = global_matrix(full[_GLOBAL], self._scene.reference, self._picture_size)
+        self._move_background(still)
+        return self._renderer.render(self._scene.positions(deformed, frame, still) * self._scale, self._camera)[0]
+
+    def _move_background(self, still: np.ndarray | None) -> None:
+        """The picture moved by ``still`` (a pixel map, None: the picture as it is, bit-exact) as the
+        renderer's background, warped once per change of the global motion."""
+        import cv2
+
+        if (still is None and self._moved is None) or (still is not None and self._moved is not None
+                                                      and np.array_equal(still, self._moved)):
+            return
+        self._moved = still
+        if still is None:
+            self._renderer.set_background(self._still)
+            return
+        w, h = self.size
+        scaled = np.diag([w / self._picture_size[0], h / self._picture_size[1]]) @ still
+        self._renderer.set_background(cv2.warpAffine(self._picture, scaled, (w, h), flags=cv2.INTER_LINEAR,
+                                                     borderMode=cv2.BORDER_REPLICATE))

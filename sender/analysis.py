@@ -6,7 +6,8 @@ as it goes in. Smoothing (One Euro) is applied either to the pose-free
 landmarks before the fit or to the parameters after it (``Smoothing.stage``).
 With a face model that has a reference picture, the head pose is measured
 against that picture instead of the rest frame, translation and scale included
-(codec/picture.py), whatever the layout.
+(codec/picture.py), whatever the layout, and the whole frame's motion against
+it comes last (GLOBAL_PARAMS, sender/motion_global.py).
 """
 
 from collections.abc import Iterable, Iterator
@@ -14,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codec.deform import PAPER_PARAMS, POSE_PARAMS, Deformer
+from codec.deform import GLOBAL_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
 from codec.face_model import BaseFace
 from codec.mouth import MOUTH_PARAMS
 from codec.picture import VIEW_DISTANCE, Placement, head_pivot, relative_pose
@@ -24,6 +25,7 @@ from common.errors import InputError, NoFaceError
 from protocol.quantise import VECTOR_STEP, steps_for
 from sender.calibrate import RestFace, choose_rest, fapu_ratios
 from sender.fit import ModelFit
+from sender.motion_global import GlobalMotion
 from sender.pose import STABLE_LANDMARKS, Pose, fit_pose, image_to_face_axes
 from sender.smoothing import OneEuroFilter
 
@@ -60,12 +62,13 @@ def layout_names(layout: str, face: BaseFace) -> tuple[str, ...]:
     return paper + face.motion.names + POSE_PARAMS[:3]
 
 
-def picture_names(names: tuple[str, ...], face: BaseFace) -> tuple[str, ...]:
-    """``names`` with the head's translation and scale when ``face`` has a reference picture: the
-    receiver places the head in it."""
-    if face.picture is None or "tx" in names:
+def picture_names(names: tuple[str, ...], face: BaseFace, moving: bool = True) -> tuple[str, ...]:
+    """``names`` with, when ``face`` has a reference picture, the head's translation and scale (the
+    receiver places the head in it) and, if ``moving`` (the picture has a background to measure
+    it on), the whole frame's motion against it, last."""
+    if face.picture is None:
         return names
-    return names + POSE_PARAMS[3:]
+    return names + (() if "tx" in names else POSE_PARAMS[3:]) + (GLOBAL_PARAMS if moving else ())
 
 
 @dataclass(frozen=True)
@@ -127,7 +130,10 @@ class FaceAnalyser:
         self._pivot = head_pivot(self._base)
         self._calibration_frames = max(1, calibration_frames)
         self._neutral = neutral
-        self.names = picture_names(layout_names(layout, face), face)
+        self._global = None if face.picture is None else GlobalMotion(face.picture, self._base)
+        if self._global is not None and not self._global.usable:
+            self._global = None
+        self.names = picture_names(layout_names(layout, face), face, self._global is not None)
         self._picture = None if face.picture is None else Placement.from_matrix(face.picture.projection)
         self._picture_width = 0 if face.picture is None else face.picture.image.shape[1]
         self._factor = 1.0  # the picture's width over the frames'
@@ -140,7 +146,7 @@ class FaceAnalyser:
         steps = steps_for(self.names)
         on_landmarks = smoothing.stage == "landmarks"
         self._landmark_filter = smoothing.filter(fps, VECTOR_STEP) if on_landmarks else None
-        self._pose_filter = smoothing.filter(fps, steps[-len(self._pose_names()):]) if on_landmarks else None
+        self._pose_filter = smoothing.filter(fps, steps_for(self._pose_names())) if on_landmarks else None
         self._param_filter = None if on_landmarks else smoothing.filter(fps, steps)
         self.frames_without_face = 0
 
@@ -148,7 +154,7 @@ class FaceAnalyser:
         return POSE_PARAMS if self._translate else POSE_PARAMS[:3]
 
     def run(self, frames: Iterable[np.ndarray]) -> Iterator[FrameAnalysis]:
-        pending: list[tuple[np.ndarray | None, Pose | None, np.ndarray | None]] = []
+        pending: list[tuple[np.ndarray | None, Pose | None, np.ndarray | None, np.ndarray]] = []
         previous = np.zeros(len(self.names))
         for index, frame in enumerate(frames):
             if self._picture_width:
@@ -159,24 +165,25 @@ class FaceAnalyser:
                 pose, aligned = self._align(landmarks)
             else:
                 self.frames_without_face += 1
+            still = np.zeros(0) if self._global is None else self._global.measure(frame, landmarks)
             if self.rest is None:
-                pending.append((landmarks, pose, aligned))
+                pending.append((landmarks, pose, aligned, still))
                 if not self._ready(pending, index):
                     continue
                 self._calibrate(pending)
                 for item in pending:
-                    previous, target = self._params(item[1], item[2], previous)
+                    previous, target = self._params(item[1], item[2], item[3], previous)
                     yield FrameAnalysis(item[0], item[1], previous, target)
                 pending = []
                 continue
-            previous, target = self._params(pose, aligned, previous)
+            previous, target = self._params(pose, aligned, still, previous)
             yield FrameAnalysis(landmarks, pose, previous, target)
         if pending:
-            if all(a is None for *_, a in pending):
+            if all(item[2] is None for item in pending):
                 raise NoFaceError("no face found in any frame")
             self._calibrate(pending)
             for item in pending:
-                previous, target = self._params(item[1], item[2], previous)
+                previous, target = self._params(item[1], item[2], item[3], previous)
                 yield FrameAnalysis(item[0], item[1], previous, target)
 
     def _align(self, landmarks: np.ndarray) -> tuple[Pose, np.ndarray]:
@@ -190,23 +197,27 @@ class FaceAnalyser:
         return sum(a is not None for *_, a in pending) >= self._calibration_frames
 
     def _calibrate(self, pending: list) -> None:
-        candidates = [(i, lm, a) for i, (lm, _, a) in enumerate(pending) if a is not None]
+        candidates = [(i, lm, a) for i, (lm, _, a, _) in enumerate(pending) if a is not None]
         if not candidates:
             raise NoFaceError("no face found in any frame")
         index = choose_rest(candidates, self._neutral)
-        landmarks, pose, aligned = pending[index]
+        landmarks, pose, aligned, _ = pending[index]
         self.rest = RestFace(aligned, fapu_ratios(aligned, self._face), index)
         self._rest_pose = pose
 
-    def _params(self, pose: Pose | None, aligned: np.ndarray | None,
+    def _params(self, pose: Pose | None, aligned: np.ndarray | None, still: np.ndarray,
                 previous: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """(k,) parameters and the (468, 3) unsmoothed target they were fitted to (None without a face)."""
+        """(k,) parameters and the (468, 3) unsmoothed target they were fitted to (None without a
+        face); ``still``: the frame's global motion (empty without a reference picture), which
+        comes last and is measured with or without a face."""
         filters = (self._landmark_filter, self._pose_filter, self._param_filter)
         if aligned is None:
             for f in filters:
                 if f is not None:
                     f.reset()
-            return previous * RELAX, None
+            relaxed = previous * RELAX
+            relaxed[len(relaxed) - len(still):] = still
+            return relaxed, None
         observed = target = self.rest.target(aligned, self._base)
         head = self._head(pose)
         if self._landmark_filter is not None:
@@ -218,7 +229,7 @@ class FaceAnalyser:
             parts.append(self.fit.upper(target))
         if self._personal:
             parts.append(self.fit.motion(target, paper))
-        params = np.concatenate(parts + [head])
+        params = np.concatenate(parts + [head, still])
         if self._param_filter is not None:
             params = self._param_filter(params)
         return params, observed

@@ -11,6 +11,7 @@ clip shows them talking, the file also carries their own motion basis
 
 import argparse
 import sys
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -52,7 +53,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--seconds", type=float, default=2.0, metavar="S",
                    help="how much of the clip --auto chooses from, counted from the first face (default 2)")
     p.add_argument("--texture-size", type=int, default=TEXTURE_SIZE, metavar="PX",
-                   help=f"texture width and height in texels, 64-1024 (default {TEXTURE_SIZE})")
+                   help=f"texture width and height in texels, 64-1024 (default {TEXTURE_SIZE}); with --no-picture "
+                        "only: the reference picture textures the face otherwise")
     p.add_argument("--motion", type=int, default=MOTION_PATTERNS, metavar="N",
                    help=f"most patterns in the person's motion basis, 0-{MAX_COMPONENTS} (default {MOTION_PATTERNS}; "
                         f"0: none); a clip gets as many as it has frames for, {FRAMES_PER_PATTERN} frames of "
@@ -101,11 +103,14 @@ def _run(args) -> int:
     base = load_base_face()
     index, frame, landmarks, aligned, score = _neutral_frame(source, base, args.frame, args.seconds)
     rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
-    texture = texture_from_frame(rgb, landmarks[:, :2], base.uv, base.faces, args.texture_size)
-    picture = None
-    if not args.no_picture:
+    picture, texture = None, None  # a reference picture textures the face too (codec/face_file.py)
+    if args.no_picture:
+        texture = texture_from_frame(rgb, landmarks[:, :2], base.uv, base.faces, args.texture_size)
+    else:
         picture = reference_picture(rgb, landmarks, aligned, base,
                                     _open_mouth(open_source(args.input), base, args.seconds))
+        picture = replace(picture, ring_weights=_rings(args, decode_face(personal_face(aligned, None, base,
+                                                                                        picture=picture)), index))
     data = personal_face(aligned, texture, base, picture=picture)
     motion, note = None, ""
     if args.motion:
@@ -199,6 +204,35 @@ def _motion(args, face, neutral: int):
     return learn_motion(residual, vertices, args.motion, args.motion_over), len(residual)
 
 
+def _rings(args, face, neutral: int) -> np.ndarray:
+    """How far the picture around the face follows the head (sender/motion_global.ring_weights),
+    measured over the frames the motion basis learns from."""
+    from itertools import islice
+
+    from common.progress import progress_for
+    from sender.motion_global import ring_weights
+    from sender.sources import open_source
+    from sender.tracker import FaceTracker
+
+    source = open_source(args.input)
+    limit = max(neutral + 1, round(args.motion_seconds * source.fps))
+    total = min(limit, source.length or limit)
+    progress = progress_for("fd-enroll", args.quiet)
+    tracker = FaceTracker()
+
+    def frames():
+        for count, frame in enumerate(islice(source.frames(), limit), 1):
+            if progress:
+                progress.update(count, total, "measuring how the hair and shoulders move")
+            yield frame, tracker.track(frame)
+
+    try:
+        return ring_weights(face, frames())
+    finally:
+        if progress:
+            progress.close()
+
+
 def _neutral_frame(source, base, wanted: int | None, seconds: float):
     """(index, BGR frame, (468, 3) landmarks in pixels, (468, 3) pose-free landmarks, (gap, degrees)).
 
@@ -223,7 +257,7 @@ def _neutral_frame(source, base, wanted: int | None, seconds: float):
             points = image_to_face_axes(landmarks)
             pose = fit_pose(points[stable], base.vertices[stable])
             score = (lip_gap(landmarks), float(np.linalg.norm(pose.head_rotation_vector())))
-            cost = score[0] / GAP_UNIT + score[1] / ANGLE_UNIT
+            cost = float(score[0] / GAP_UNIT + score[1] / ANGLE_UNIT)
             if best is None or cost < best_cost:
                 best, best_cost = (index, frame, landmarks, pose.apply(points), score), cost
             seen += 1

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
-from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
+from codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, PAPER_PARAMS, Deformer
 from codec.face_model import load_base_face
 from codec.motion_basis import BASIS_PARAMS
 from codec.mouth import MOUTH_PARAMS
@@ -43,8 +43,9 @@ def params(**named) -> np.ndarray:
 
 def test_layout():
     assert EXTENDED_PARAMS[:13] == PAPER_PARAMS
-    assert len(set(EXTENDED_PARAMS)) == N == 29 + len(MOUTH_PARAMS) + len(BASIS_PARAMS)
-    assert EXTENDED_PARAMS[29:] == MOUTH_PARAMS + BASIS_PARAMS  # appended: older layouts keep their slots
+    assert len(set(EXTENDED_PARAMS)) == N == 29 + len(MOUTH_PARAMS) + len(BASIS_PARAMS) + len(GLOBAL_PARAMS)
+    # appended: older layouts keep their slots
+    assert EXTENDED_PARAMS[29:] == MOUTH_PARAMS + BASIS_PARAMS + GLOBAL_PARAMS
     assert EXTENDED_PARAMS[13:29] == UPPER_PARAMS + ("gaze_yaw", "gaze_pitch", "rx", "ry", "rz", "tx", "ty", "tz")
 
 

@@ -8,6 +8,7 @@ import pytest
 
 from codec.face_file import face_id, load_face_file
 from codec.face_model import load_base_face
+from codec.picture import face_texture
 from sender.enroll import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,13 +31,14 @@ def test_enrolment_writes_a_personal_textured_model(tmp_path, capsys, choice):
     generic = load_base_face()
     assert np.abs(face.vertices - generic.vertices).max() > 0.01
     np.testing.assert_allclose(face.vertices[10, 1] - face.vertices[152, 1], 1.0, atol=1e-5)
-    texture = face.texture
-    assert texture.shape == (256, 256, 3)
-    centre = texture[64:192, 64:192].reshape(-1, 3).astype(float)
-    assert centre.std(axis=0).min() > 10  # a face, not a flat fill
-    assert 50 < centre.mean() < 230
-    # mesh and texture, 12 patterns of 2.4 KB, and the reference picture (under 25 KB)
-    assert out.stat().st_size < 40_000 + 12 * 2_500 + 25_000
+    assert face.texture is None  # the reference picture textures the face
+    texture, uv = face_texture(face)
+    assert texture is face.picture.image and np.all((uv > 0) & (uv < 1))
+    inside = (uv[:, 0] * texture.shape[1]).astype(int), ((1 - uv[:, 1]) * texture.shape[0]).astype(int)
+    skin = texture[inside[1], inside[0]].astype(float)
+    assert skin.std(axis=0).min() > 10 and 50 < skin.mean() < 230  # a face, not a flat fill
+    # mesh, 12 patterns of 1.2 KB, and the reference picture (under 25 KB)
+    assert out.stat().st_size < 16_000 + 12 * 1_200 + 25_000
 
 
 def test_the_reference_picture_is_the_frame_with_the_face_placed_in_it(tmp_path, capsys):

@@ -120,12 +120,77 @@ def test_the_reference_picture_round_trips():
     assert decode_face(personal_face(neutral, texture)).picture is None
 
 
-def test_files_of_version_2_are_still_read():
+def as_version(data: bytes, version: int) -> bytes:
+    """A current face file rewritten as an older version (1-3) would have held it: the feature points
+    written out, the motion basis's patterns as <f4, no ring weights; before 3, no picture; before 2,
+    no motion basis."""
+    n = int.from_bytes(data[8:12], "little")
+    info = json.loads(data[12:12 + n])
+    pos = 12 + n
+    mesh = data[pos:pos + 20 * info["vertices"] + 6 * info["faces"]]
+    pos += len(mesh)
+    k, c, _ = info.get("motion", (0, 0, ""))
+    motion = data[pos:pos + 2 * k] + np.frombuffer(data, "<f2", 3 * c * k, pos + 2 * k).astype("<f4").tobytes()
+    images = data[pos + 2 * k + 6 * c * k:]
+    if info["meta"] == "base":
+        info["meta"] = BASE.meta
+    info.pop("rings", None)
+    if version < 3:
+        for field in ("picture", "projection", "mouth", "mouth_points"):
+            info.pop(field, None)
+        images = images[:info["texture"]]
+    assert version >= 2 or not k
+    text = json.dumps(info).encode()
+    return data[:6] + bytes([version, 0]) + len(text).to_bytes(4, "little") + text + mesh + motion + images
+
+
+def test_files_of_older_versions_are_still_read():
+    from codec.motion_basis import MotionBasis
+
     neutral, texture = a_person()
-    data = personal_face(neutral, texture)  # no picture: the version 2 layout
-    old = decode_face(data[:6] + bytes([2]) + data[7:])
-    np.testing.assert_array_equal(old.vertices, decode_face(data).vertices)
-    assert old.picture is None
+    motion = MotionBasis(np.array([100, 101, 102]), np.random.default_rng(3).normal(0, 0.1, (2, 3, 3)))
+    person = decode_face(personal_face(neutral, texture, motion=motion, picture=a_picture()))
+    data = encode_face(replace(person, picture=replace(person.picture, ring_weights=np.full(144, 0.5))))
+    now = decode_face(data)
+    for version in (1, 2, 3):
+        kept = data if version > 1 else personal_face(neutral, texture)
+        old = decode_face(as_version(kept, version))
+        np.testing.assert_array_equal(old.vertices, now.vertices)
+        assert old.meta == BASE.meta
+        assert old.picture is None if version < 3 else old.picture.ring_weights is None
+        np.testing.assert_array_equal(old.texture, decode_face(kept).texture)
+        if version > 1:
+            np.testing.assert_array_equal(old.motion.vectors, now.motion.vectors)  # <f2 values kept in <f4
+    np.testing.assert_array_equal(now.picture.image, decode_face(as_version(data, 3)).picture.image)
+
+
+def test_a_picture_replaces_the_texture_and_the_generic_features_take_no_bytes():
+    from codec.picture import face_texture
+
+    neutral, texture = a_person()
+    with_texture = personal_face(neutral, texture, picture=a_picture())
+    data = personal_face(neutral, None, picture=a_picture())
+    face = decode_face(data)
+    assert face.texture is None and face.meta == BASE.meta
+    assert len(as_version(with_texture, 3)) - len(data) > 10_000  # the feature points and the texture
+    image, uv = face_texture(face)
+    assert image is face.picture.image
+    # uv (v up) puts every vertex where the picture's projection does
+    pixels = np.column_stack([face.vertices, np.ones(len(face.vertices))]) @ face.picture.projection.T
+    np.testing.assert_allclose(uv * [96, -80] + [0, 80], pixels[:, :2], atol=1e-9)
+    assert face_texture(decode_face(with_texture))[0].shape == (64, 64, 3)  # its own texture first
+
+
+def test_ring_weights_round_trip_and_must_fit_the_face():
+    neutral, texture = a_person()
+    person = decode_face(personal_face(neutral, None, picture=a_picture()))
+    weights = np.linspace(0.0, 1.0, 144)
+    data = encode_face(replace(person, picture=replace(person.picture, ring_weights=weights)))
+    np.testing.assert_allclose(decode_face(data).picture.ring_weights, weights, atol=0.5 / 255)
+    for rings in ([1] * 143, [256] * 144, [-1] * 144, "x", [[1, 2]] * 72, [float("inf")] * 144):
+        with pytest.raises(InputError) as info:
+            decode_face(_with_info(data, rings=rings), "me.fdface")
+        assert "\n" not in str(info.value) and str(info.value).startswith("me.fdface: ")
 
 
 def _with_info(data: bytes, **changes) -> bytes:

@@ -9,15 +9,26 @@ import numpy as np
 import pytest
 
 from codec.camera import Camera
-from codec.deform import EXTENDED_PARAMS, Deformer
+from codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, Deformer
 from codec.face_file import decode_face, encode_face, load_face_file, save_face_file
 from codec.face_model import ReferencePicture, load_base_face, mouth_vertices
-from codec.picture import RINGS, Placement, SceneMesh, frame_placement, head_pivot, outer_loop, relative_pose
+from codec.picture import (
+    RINGS,
+    Placement,
+    SceneMesh,
+    frame_placement,
+    global_matrix,
+    global_motion,
+    head_pivot,
+    outer_loop,
+    relative_pose,
+)
 from codec.render import Renderer
 from codec.texture import texture_from_frame
 from common.errors import InputError
 from protocol.stream import Header, steps_for
 from receiver.face_view import FaceView, PictureView, default_look, open_view
+from sender.motion_global import GlobalMotion, ring_weights
 from sender.tracker import FaceTracker
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -310,3 +321,109 @@ def test_the_picture_look_without_a_picture_is_one_line(scene, tmp_path, capsys)
     assert main([str(stream), "--face", str(bare), "-o", str(tmp_path / "x.y4m"), "--look", "picture"]) != 0
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("fd-recv: ")
+
+
+# The whole frame's motion (a camera's pan, zoom and roll): GLOBAL_PARAMS.
+GLOBAL_NAMES = NAMES + GLOBAL_PARAMS
+
+
+def test_global_motion_and_its_pixel_map_are_inverse_and_zero_is_none():
+    reference = Placement(60.0, np.eye(3), np.array([100.0, -80.0, 0.0]))
+    motion = np.array([0.1, -0.05, 0.03, 2.0])
+    matrix = global_matrix(motion, reference, (200, 160))
+    np.testing.assert_allclose(global_motion(matrix, reference, (200, 160)), motion, atol=1e-12)
+    # the picture's centre moves by the shift alone (60 pixels a face height, y up), a corner also turns
+    np.testing.assert_allclose(matrix @ [100.0, 80.0, 1.0], [106.0, 83.0], atol=1e-12)
+    assert global_matrix(np.zeros(4), reference, (200, 160)) is None
+    # the face ignores them: the receiver moves the picture
+    deformer, full = Deformer(BASE), np.zeros(len(EXTENDED_PARAMS))
+    full[[EXTENDED_PARAMS.index(n) for n in GLOBAL_PARAMS]] = motion
+    np.testing.assert_array_equal(deformer.deform_extended(full), deformer.deform_extended(np.zeros(len(full))))
+
+
+def test_the_picture_moves_by_the_global_motion_and_stays_bit_exact_without():
+    face = a_face_with_a_picture()
+    view = PictureView(header(face, GLOBAL_NAMES), face, (200, 160))
+    rest = PictureView(header(face), face, (200, 160)).render(np.zeros(len(NAMES)))
+    np.testing.assert_array_equal(view.render(np.zeros(len(GLOBAL_NAMES))), rest)
+    motion = np.array([0.1, -0.05, 0.03, 2.0])
+    moved = view.render(np.r_[np.zeros(len(NAMES)), motion])
+    matrix = global_matrix(motion, Placement.from_matrix(face.picture.projection), (200, 160))
+    expected = cv2.warpAffine(face.picture.image, matrix, (200, 160), flags=cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_REPLICATE)
+    np.testing.assert_array_equal(moved[:, :8], expected[:, :8])  # past the rings: the moved picture
+    np.testing.assert_array_equal(view.render(np.zeros(len(GLOBAL_NAMES))), rest)  # and back, exactly
+    half = PictureView(header(face, GLOBAL_NAMES), face, (100, 80)).render(np.r_[np.zeros(len(NAMES)), motion])
+    small = cv2.resize(moved, (100, 80), interpolation=cv2.INTER_AREA)
+    assert np.abs(half.astype(int) - small.astype(int))[:, :4].mean() < 4  # scaled with the output
+
+
+def a_textured_scene(size=256, seed=4):
+    """A face model placed in the middle of a picture of random blobs (corners everywhere)."""
+    rng = np.random.default_rng(seed)
+    image = np.full((size, size, 3), 120, np.uint8)
+    for _ in range(400):
+        centre = tuple(int(v) for v in rng.integers(0, size, 2))
+        cv2.circle(image, centre, int(rng.integers(2, 9)), tuple(int(v) for v in rng.integers(0, 255, 3)), -1)
+    place = Placement(size * 0.3, np.eye(3), np.array([size / 2, -size / 2, 0.0]))
+    return replace(BASE, picture=ReferencePicture(image, place.matrix()))
+
+
+def landmarks_of(face, placement: Placement) -> np.ndarray:
+    """(468, 3) tracker-like landmarks (pixels, y down, z away from the camera) of the face placed so."""
+    return placement.apply(face.vertices) * [1.0, -1.0, -1.0]
+
+
+def test_the_sender_measures_a_known_global_motion():
+    face = a_textured_scene()
+    measure = GlobalMotion(face.picture, face.vertices)
+    reference = measure.reference
+    landmarks = landmarks_of(face, reference)
+    bgr = cv2.cvtColor(face.picture.image, cv2.COLOR_RGB2BGR)
+    np.testing.assert_array_equal(measure.measure(bgr, landmarks), np.zeros(4))  # still: exactly zero
+    for motion in ([0.06, -0.04, 0.0, 0.0], [0.02, 0.03, 0.04, 1.5], [-0.1, 0.05, -0.05, -3.0]):
+        matrix = global_matrix(np.array(motion), reference, (256, 256))
+        frame = cv2.warpAffine(bgr, matrix, (256, 256), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        got = measure.measure(frame, landmarks)
+        # within a quarter of a pixel at the picture's corners (shift in face heights of 77 pixels)
+        corners = np.array([[0, 0], [255, 0], [0, 255], [255, 255]], float)
+        back = global_matrix(got, reference, (256, 256))
+        error = np.abs(corners @ back[:, :2].T + back[:, 2] - (corners @ matrix[:, :2].T + matrix[:, 2]))
+        assert error.max() < 0.25, (motion, got)
+    # a frame of another size is measured as if scaled to the picture's
+    big = cv2.resize(frame, (512, 512), interpolation=cv2.INTER_LINEAR)
+    np.testing.assert_allclose(measure.measure(big, landmarks * 2), got, atol=0.01)
+
+
+def test_a_plain_background_carries_no_global_motion():
+    from sender.analysis import picture_names
+
+    face = a_textured_scene()
+    assert GlobalMotion(face.picture, face.vertices).usable
+    plain = replace(face.picture, image=np.full_like(face.picture.image, 90))
+    assert not GlobalMotion(plain, face.vertices).usable
+    assert picture_names(("theta",), face)[-4:] == GLOBAL_PARAMS
+    assert picture_names(("theta",), face, moving=False) == ("theta", "tx", "ty", "tz")
+
+
+def test_ring_weights_follow_what_moves_with_the_head():
+    """Frames where the whole picture moves with the head (hair everywhere) give weights near 1; frames
+    where only the face moves (a wall) near 0; the outermost ring stays put either way."""
+    face = a_textured_scene()
+    reference = Placement.from_matrix(face.picture.projection)
+    bgr = cv2.cvtColor(face.picture.image, cv2.COLOR_RGB2BGR)
+    shifts = [np.array([dx, dy]) for dx, dy in ((6, 0), (-6, 2), (0, -6), (4, 4), (-4, -5))] * 30
+
+    def frames(moving):
+        for shift in shifts:
+            placed = Placement(reference.scale, reference.rotation, reference.shift + [shift[0], -shift[1], 0.0])
+            frame = cv2.warpAffine(bgr, np.float64([[1, 0, shift[0]], [0, 1, shift[1]]]), (256, 256),
+                                   borderMode=cv2.BORDER_REFLECT) if moving else bgr
+            yield frame, landmarks_of(face, placed)
+
+    rings = len(RINGS)
+    hair = ring_weights(face, frames(True)).reshape(rings, -1)
+    wall = ring_weights(face, frames(False)).reshape(rings, -1)
+    np.testing.assert_array_equal(hair[-1], 0.0)
+    np.testing.assert_array_equal(wall[-1], 0.0)
+    assert hair[:-1].mean() > 0.9 and wall[:-1].mean() < 0.1

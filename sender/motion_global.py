@@ -1,0 +1,164 @@
+"""The whole frame's motion against the reference picture: camera pan, zoom and roll.
+
+The receiver draws the still reference picture around the moving face; when
+the camera moves, the background and the body move with it, and a picture held
+still is wrong everywhere (DESIGN.md section 4). Per frame, corners of the
+reference picture outside the face are followed into the frame by pyramidal
+Lucas-Kanade flow (starting from the last frame's motion, checked backwards),
+and a similarity is fitted to them with RANSAC: four numbers per frame
+(codec/picture.global_matrix), sent as GLOBAL_PARAMS.
+
+At enrolment, :func:`ring_weights` measures how far the picture around the
+face (hair, neck, shoulders, the wall) follows the head, for the receiver's
+rings.
+"""
+
+from collections.abc import Iterable
+
+import cv2
+import numpy as np
+
+from codec.face_model import BaseFace, ReferencePicture
+from codec.picture import Placement, SceneMesh, global_motion
+from sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
+
+#: The face's landmark hull grown by this factor about its centre, and everything below it (neck and
+#: body), is left out where the points start and where they land: hair, ears and shoulders move with
+#: the person, not with the camera; corners there outnumber the background's and would win the fit.
+FACE_GROW = 2.0
+CORNERS = 300  # most points followed
+#: Fewer agreeing points: keep the last frame's motion; a picture with fewer corners outside the
+#: face (a plain wall) is not measured at all, and its stream carries no global motion. With 12,
+#: the 17 corners of a plain blue wall and a shoulder gave motion up to 5 pixels that was not
+#: there: 0.2 kbit/s more for 0.04 dB.
+MIN_POINTS = 20
+ROUND_TRIP = 0.5  # pixels: a point that does not flow back to where it started is dropped
+RANSAC_PIXELS = 1.0
+#: A still camera explaining this share of the fit's agreeing points is taken to be still (exactly).
+STILL_SHARE = 0.8
+_IDENTITY = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def _flow(before: np.ndarray, after: np.ndarray, start: np.ndarray, guess: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(points, found) of pyramidal Lucas-Kanade from ``start`` in grey ``before`` to ``after``, from ``guess``."""
+    found, ok, _ = cv2.calcOpticalFlowPyrLK(before, after, start, guess.copy(), None, None, (21, 21), 3,
+                                            (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
+                                            cv2.OPTFLOW_USE_INITIAL_FLOW)
+    return np.asarray(found), np.asarray(ok).ravel() == 1
+
+
+def face_mask(points: np.ndarray, size: tuple[int, int], grow: float = FACE_GROW) -> np.ndarray:
+    """(H, W) uint8: 255 outside the convex hull of (n, 2) pixel ``points`` grown ``grow`` times about
+    its centre and that hull moved down by the picture's height (y down)."""
+    width, height = size
+    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+    grown = centre + grow * (points - centre)
+    hull = cv2.convexHull(np.round(np.concatenate([grown, grown + [0.0, height]])).astype(np.int32))
+    mask = np.full((height, width), 255, np.uint8)
+    cv2.fillConvexPoly(mask, hull, 0)
+    return mask
+
+
+class GlobalMotion:
+    """Measures (gx, gy, gs, gr) of each frame against ``picture``; ``vertices`` are the face model's,
+    which the picture's projection places (to leave the face out of the reference's points)."""
+
+    def __init__(self, picture: ReferencePicture, vertices: np.ndarray) -> None:
+        self.reference = Placement.from_matrix(picture.projection)
+        self._gray = cv2.cvtColor(picture.image, cv2.COLOR_RGB2GRAY)
+        height, width = self._gray.shape
+        self.size = (width, height)
+        face = self.reference.apply(vertices)[:, :2] * [1.0, -1.0]
+        found = cv2.goodFeaturesToTrack(self._gray, CORNERS, 0.01, 5, mask=face_mask(face, self.size))
+        self._points = np.zeros((0, 1, 2), np.float32) if found is None else found.astype(np.float32)
+        self._matrix = _IDENTITY
+
+    @property
+    def usable(self) -> bool:
+        """Whether the picture has corners enough outside the face to measure its motion on."""
+        return len(self._points) >= MIN_POINTS
+
+    def measure(self, frame: np.ndarray, landmarks: np.ndarray | None) -> np.ndarray:
+        """(4,) the global motion of BGR ``frame`` (scaled to the picture's size) whose tracked
+        landmarks (pixels, None without a face) are given; the last frame's when too few points agree."""
+        gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        factor = self.size[0] / gray.shape[1]
+        if gray.shape[::-1] != self.size:
+            gray = cv2.resize(gray, self.size, interpolation=cv2.INTER_AREA)
+        if self.usable:
+            self._follow(gray, None if landmarks is None else np.asarray(landmarks)[:, :2] * factor)
+        return global_motion(self._matrix, self.reference, self.size)
+
+    def _follow(self, gray: np.ndarray, face: np.ndarray | None) -> None:
+        start = self._points
+        guess = (start @ self._matrix[:, :2].T + self._matrix[:, 2]).astype(np.float32)
+        found, ok = _flow(self._gray, gray, start, guess)
+        back, ok_back = _flow(gray, self._gray, found, start)
+        keep = ok & ok_back & (np.linalg.norm((back - start)[:, 0], axis=1) < ROUND_TRIP)
+        if face is not None:
+            keep &= face_mask(face, self.size)[np.clip(np.round(found[:, 0, 1]).astype(int), 0, self.size[1] - 1),
+                                                np.clip(np.round(found[:, 0, 0]).astype(int), 0, self.size[0] - 1)] > 0
+        if keep.sum() < MIN_POINTS:
+            return
+        matrix, inliers = cv2.estimateAffinePartial2D(start[keep], found[keep], method=cv2.RANSAC,
+                                                      ransacReprojThreshold=RANSAC_PIXELS)
+        if matrix is None or inliers is None or inliers.sum() < MIN_POINTS:
+            return
+        still = np.linalg.norm((found - start)[keep, 0], axis=1) < RANSAC_PIXELS
+        self._matrix = _IDENTITY if still.sum() >= STILL_SHARE * inliers.sum() else matrix
+
+
+#: How much head motion (squared face heights, summed over frames) a ring vertex needs before its
+#: own measured weight counts as much as the default fall-off (codec/picture.RINGS): about 100 frames
+#: of a 0.04 face-height move. On the dev clips' 256x256 crops (mean PSNR, docs/picture.md): 0.05,
+#: 0.15 and 0.3 within 0.02 dB of each other, 0.15 with the best 5th percentile.
+WEIGHT_PRIOR = 0.15
+#: Ring vertices each weight is averaged over along its ring: 1, 3, 5 gave 21.68, 21.73, 21.71 dB.
+SPREAD = 3
+
+
+def ring_weights(face: BaseFace, frames: Iterable[tuple[np.ndarray, np.ndarray | None]]) -> np.ndarray:
+    """(rings x boundary,) how far each ring vertex of the face's scene mesh (codec/picture.SceneMesh)
+    follows the head, measured on BGR ``frames`` with their tracked landmarks (pixels; None without a
+    face) of the picture's size: the least-squares factor between where the picture's content at the
+    vertex went (Lucas-Kanade flow from the picture, checked backwards) and where a vertex moving
+    fully with the head would go, in 0..1, averaged along the ring weighted by the head motion seen and
+    drawn toward the default fall-off where little was seen; the outermost ring stays put (0). Hair
+    that swings with the head comes out near 1, a wall behind it near 0."""
+    picture = face.picture
+    if picture is None:
+        raise ValueError("ring weights need a face with a reference picture")
+    scene = SceneMesh(face, picture)
+    reference = cv2.cvtColor(picture.image, cv2.COLOR_RGB2GRAY)
+    height, width = reference.shape
+    rest = scene.ring_pixels()
+    # a vertex past the picture's edge draws the edge (repeated): measure there
+    probe = np.clip(rest, 4, [width - 5, height - 5]).astype(np.float32)
+    stable = list(STABLE_LANDMARKS)
+    vertices = np.asarray(face.vertices, dtype=np.float64)
+    agree, seen = np.zeros(len(rest)), np.zeros(len(rest))
+    for frame, landmarks in frames:
+        if landmarks is None:
+            continue
+        placement = fit_pose(image_to_face_axes(landmarks)[stable], vertices[stable]).placement()
+        head = scene.ring_pixels(placement) - rest
+        gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        start = probe[:, None].copy()
+        guess = (probe + 0.5 * head)[:, None].astype(np.float32)
+        found, ok = _flow(reference, gray, start, guess)
+        back, ok_back = _flow(gray, reference, found, start)
+        good = ok & ok_back & (np.linalg.norm((back - start)[:, 0], axis=1) < 2 * ROUND_TRIP)
+        agree += np.where(good, ((found - start)[:, 0] * head).sum(axis=1), 0.0)
+        seen += np.where(good, (head * head).sum(axis=1), 0.0)
+    count = len(scene.loop)
+    agree, seen = _around(agree.reshape(-1, count)), _around(seen.reshape(-1, count))
+    weight = np.clip(agree / np.maximum(seen, 1e-12), 0.0, 1.0)
+    confidence = seen / (seen + WEIGHT_PRIOR * scene.reference.scale ** 2)
+    out = confidence * weight + (1.0 - confidence) * scene.default_weights().reshape(-1, count)
+    out[-1] = 0.0
+    return out.ravel()
+
+
+def _around(values: np.ndarray) -> np.ndarray:
+    """(rings, n) sums over SPREAD neighbours along each (closed) ring."""
+    return np.sum([np.roll(values, shift, axis=1) for shift in range(-(SPREAD // 2), SPREAD // 2 + 1)], axis=0)
