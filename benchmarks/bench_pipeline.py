@@ -26,7 +26,7 @@ def bench(clip: Path, size: int) -> str:
     started = time.perf_counter()
     data = b"".join(session.stream())
     send_s = time.perf_counter() - started
-    n = len(session.frames)
+    n = session.frame_count
 
     decoder = StreamDecoder()
     events = decoder.feed(data) + decoder.close()

@@ -162,6 +162,10 @@ class Renderer:
             raise ValueError(f"{name} must be a bool mask of shape ({len(self.faces)},)")
         return mask
 
+    def set_background(self, background) -> None:
+        """Draw over ``background`` from the next frame on: as the constructor's (a moving camera's picture)."""
+        self._background = self._parse_background(background)
+
     def _parse_background(self, background) -> np.ndarray:
         width, height = self.size
         if isinstance(background, np.ndarray) and background.ndim == 3:
@@ -238,3 +242,11 @@ class Renderer:
             resolve(self._nearness, self._linear, box, persp, self._background, _DECODE, _ENCODE,
                     image, depth)
         return image, depth
+
+
+def warm_up() -> None:
+    """Loads (or compiles) the rasteriser's machine code by drawing one small triangle: a live
+    receiver does this while it waits for the call, not when the first frame is due."""
+    triangle = np.array([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.0, 0.5, 0.0]])
+    camera = Camera.orthographic(2.0, eye=(0.0, 0.0, 2.0), target=(0.0, 0.0, 0.0))
+    Renderer(np.array([[0, 1, 2]]), size=(8, 8)).render(triangle, camera)

@@ -84,8 +84,11 @@ def _run(args) -> int:
         check(codec)
     vmaf_available()
     work, done = args.out / "work", args.out / "rows"
-    work.mkdir(parents=True, exist_ok=True)
-    done.mkdir(exist_ok=True)
+    try:
+        work.mkdir(parents=True, exist_ok=True)
+        done.mkdir(exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"--out {args.out}: cannot make the folder ({exc.strerror or exc})") from None
     say = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
     prepared = []
     for path in args.clips:

@@ -5,12 +5,14 @@ import json
 import sys
 import time
 
-from common.cli import ArgumentParser, parse_size, run_main
+from common.cli import ArgumentParser, check_output, parse_size, run_main
+from receiver.face_view import LOOKS
 
 EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
   fd-send talk.mp4 | fd-recv -o - | ffplay -
   fd-recv talk.fd -o out.y4m --size 256 --dump decoded.npz
+  fd-recv talk.fd --face me.fdface --look face -o face-only.mp4
   fd-recv --listen udp://:5000 --face me.fdface -o - | ffplay -
   fd-recv --listen tcp://0.0.0.0:5000 -o call.mp4 --json
   fd-recv --listen udp://:5000 --key call.key -o call.mp4
@@ -29,9 +31,15 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "tcp://HOST:PORT (one connection); HOST defaults to 127.0.0.1")
     p.add_argument("-o", "--output", metavar="FILE",
                    help="video file (.mp4, .mkv, .mov: H.264), .y4m, or - for Y4M on stdout "
-                        "(default, unless --show)")
-    p.add_argument("--size", type=parse_size, default=(512, 512), metavar="WxH",
-                   help="output size in pixels, e.g. 512 (default) or 640x480")
+                        "(default, unless --show or --serve)")
+    p.add_argument("--size", type=parse_size, metavar="WxH",
+                   help="output size in pixels, e.g. 512 or 640x480 (default: the source's, as the stream "
+                        "says, else the reference picture's, else 512)")
+    p.add_argument("--look", choices=LOOKS, metavar="LOOK",
+                   help="picture: the person's whole reference picture warped by the moving face (default "
+                        "when the face model has one); face: their textured face alone (default for a model "
+                        "with a texture only); shaded: the face mesh shaded as in the paper (default for the "
+                        "generic face)")
     p.add_argument("--fps", type=float, metavar="N",
                    help="output frame rate (default: the stream's); frames are repeated or dropped to meet it")
     p.add_argument("--face", metavar="FILE",
@@ -41,6 +49,13 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="the stream is sealed with this pre-shared key (fd-keygen): packets that fail "
                         "authentication or replay are dropped and counted; also opens a sealed --face file")
     p.add_argument("--show", action="store_true", help="also show the video in a window (needs a display)")
+    p.add_argument("--serve", metavar="HOST:PORT",
+                   help="also show the video and the call's statistics in a browser, at http://HOST:PORT/ "
+                        "(HOST defaults to 127.0.0.1: --serve :8080); needs no display")
+    p.add_argument("--headers", metavar="DIR",
+                   help="with --listen udp://: keep each call's stream header in DIR, and start a call whose "
+                        "header is there at its first keyframe (a receiver restarted mid-call) instead of "
+                        "waiting for the sender to repeat it")
     p.add_argument("--timeout", type=float, default=5.0, metavar="S",
                    help="with --listen: end after S seconds without data once the stream has started (default 5)")
     p.add_argument("--dump", metavar="FILE.npz", help="also write the decoded parameters of every frame")
@@ -53,7 +68,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error("--fps must be above 0 and at most 1000")
     if args.timeout <= 0:
         p.error("--timeout must be positive")
-    if args.output is None and not args.show:
+    if args.output is None and not (args.show or args.serve):
         args.output = "-"
     return args
 
@@ -71,35 +86,49 @@ def _run(args) -> int:
     from receiver.output import Display, open_writer
     from receiver.session import ReceiveSession
     from receiver.transport import Listener, open_file
+    from receiver.viewer import Viewer, live_stats
 
     if args.output == "-" and sys.stdout.isatty():
         raise InputError("refusing to write video to a terminal: use -o FILE.mp4 or pipe it (| ffplay -)")
+    for option, path in (("-o", args.output), ("--dump", args.dump)):
+        if path:
+            check_output(path, option, (args.input, args.face))
     key = read_key(args.key) if args.key else None
     face = load_face_file(args.face, key) if args.face else None
     display = Display() if args.show else None
+    viewer = Viewer(args.serve) if args.serve else None
+    if viewer and not args.quiet:
+        print(f"fd-recv: watch at {viewer.url}", file=sys.stderr, flush=True)
 
-    def open_sinks(fps: float) -> list:
-        sinks = [open_writer(args.output, fps, args.size, sys.stdout.buffer)] if args.output else []
-        return sinks + ([display] if display else [])
+    def open_sinks(fps: float, size: tuple[int, int]) -> list:
+        sinks = [open_writer(args.output, fps, size, sys.stdout.buffer)] if args.output else []
+        return sinks + [s for s in (display, viewer) if s]
 
-    listener = Listener(args.listen, args.timeout, key) if args.listen else None
+    if args.listen:
+        from codec.render import warm_up
+
+        warm_up()  # before listening: the first frame then waits only for the call, not for the renderer
+    listener = Listener(args.listen, args.timeout, key, args.headers) if args.listen else None
     if listener and not args.quiet:
         print(f"fd-recv: listening on {listener.url}", file=sys.stderr, flush=True)
     source = listener.source() if listener else open_file(args.input or "-", sys.stdin.buffer, key)
-    session = ReceiveSession(open_sinks, args.size, face, f"--face {args.face}", args.fps)
+    session = ReceiveSession(open_sinks, args.size, face, f"--face {args.face}", args.fps, look=args.look,
+                             dump=args.dump)
     progress = progress_for("fd-recv", args.quiet or args.json) if source.size else None
-    update = (lambda: progress.update(source.consumed, source.size, f"{len(session.decoded)} frames")) \
+    update = (lambda: progress.update(source.consumed, source.size, f"{session.frames} frames")) \
         if progress else None
     started = time.perf_counter()
+    if viewer:
+        viewer.stats = live_stats(session, source, started)
     try:
         session.run(source, update)
     finally:
         if progress:
             progress.close()
         session.close()
-        if args.dump and session.decoded:
-            session.write_dump(args.dump)
-        if session.decoded:
+        if viewer:
+            viewer.close()
+        if session.frames:
             if args.json:
                 print(json.dumps(session.stats(time.perf_counter() - started)), file=sys.stderr)
             elif not args.quiet:

@@ -3,6 +3,7 @@
 import math
 import sys
 import time
+from collections import deque
 from fractions import Fraction
 
 import numpy as np
@@ -10,8 +11,11 @@ import numpy as np
 from codec.face_file import decode_face
 from codec.face_model import BaseFace, load_base_face
 from common.errors import BitstreamError, InputError
+from common.npz import NpzAppender
 from protocol.stream import Damage, End, Frame, Header, Model
 from receiver.face_view import FaceView, default_look, open_view, output_size
+
+LATENCY_WINDOW = 10_000  # frames: latency statistics cover the last 6-7 minutes at 25 fps
 
 
 class ReceiveSession:
@@ -24,13 +28,16 @@ class ReceiveSession:
     gave (``--face``), whose id must be the stream's; without it the model the
     stream carries, else the generic face; look: one of face_view.LOOKS, None
     for the most the face allows (face_view.default_look). fps: output rate (None: the
-    stream's), met by repeating or dropping frames. Damage is reported through
+    stream's), met by repeating or dropping frames; dump: a .npz path for the decoded parameters,
+    written as frames pass and finished by :meth:`close`. Damage is reported through
     ``warn`` and concealed until the next keyframe; frames already written
-    survive a broken stream.
+    survive a broken stream. Memory does not grow with the call: counters, and the latency
+    of the last :data:`LATENCY_WINDOW` frames.
     """
 
     def __init__(self, open_sinks, size: tuple[int, int] | None, face: BaseFace | None = None,
-                 face_name: str = "--face", fps: float | None = None, warn=None, look: str | None = None) -> None:
+                 face_name: str = "--face", fps: float | None = None, warn=None, look: str | None = None,
+                 dump: str | None = None) -> None:
         self._open_sinks, self._size, self._given, self._given_name = open_sinks, size, face, face_name
         self._fps, self._look, self._out_fps = fps, look, 0.0
         self.look: str | None = None
@@ -40,10 +47,14 @@ class ReceiveSession:
         self._view: FaceView | None = None
         self._ratio = Fraction(1)
         self.source = None
-        self.face_kind = self.face_id = None
-        self.decoded: list[Frame] = []
-        self.latency: list[float] = []  # seconds from the arrival of a frame's packet to its output
-        self.written = 0
+        self.face_kind: str | None = None
+        self.face_id: str | None = None
+        self.frames = self.concealed = self.interpolated = self.written = 0
+        #: seconds from the arrival of a frame's packet to its output, for the last LATENCY_WINDOW frames
+        self.latency: deque[float] = deque(maxlen=LATENCY_WINDOW)
+        self.latency_max = 0.0
+        self._dump_path = dump
+        self._dump: NpzAppender | None = None
 
     def run(self, source, on_batch=None) -> None:
         """Consumes ``source`` (receiver.transport) to its end; ``on_batch()`` after each arrival.
@@ -63,10 +74,10 @@ class ReceiveSession:
         if decoder.ended:
             return
         if source.timed_out:
-            self._warn(f"nothing arrived for a while: ending after {len(self.decoded)} frames, "
+            self._warn(f"nothing arrived for a while: ending after {self.frames} frames, "
                        "without the stream's end mark")
         else:
-            raise BitstreamError(f"truncated stream: it stopped after {len(self.decoded)} frames, "
+            raise BitstreamError(f"truncated stream: it stopped after {self.frames} frames, "
                                  "before its end mark")
 
     def _handle(self, event, arrived: float) -> None:
@@ -80,8 +91,8 @@ class ReceiveSession:
         elif isinstance(event, Damage):
             self._warn(f"damaged stream at frame {event.seq} ({event.reason}): "
                        "holding the last frame until the next keyframe")
-        elif isinstance(event, End) and event.frames != len(self.decoded):
-            raise BitstreamError(f"stream says {event.frames} frames, {len(self.decoded)} arrived")
+        elif isinstance(event, End) and event.frames != self.frames:
+            raise BitstreamError(f"stream says {event.frames} frames, {self.frames} arrived")
 
     def _start(self, header: Header) -> None:
         self._header = header
@@ -117,7 +128,14 @@ class ReceiveSession:
         if self._view is None:  # a datagram of the in-band model was lost
             self._warn("the stream's face model did not arrive whole: drawing the generic face")
             self._show(load_base_face(), "generic", check_id=False)
-        self.decoded.append(frame)
+        self.frames += 1
+        self.concealed += frame.concealed
+        self.interpolated += frame.interpolated
+        if self._dump_path is not None:
+            if self._dump is None:
+                self._dump = decoded_dump(self._dump_path, len(self._header.names))
+            self._dump.add(params=frame.params, seq=frame.seq, face_seen=frame.face_seen,
+                           concealed=frame.concealed, interpolated=frame.interpolated)
         # output frames whose time falls in this frame's interval: 1 at the stream's rate
         repeats = math.ceil((frame.seq + 1) * self._ratio) - math.ceil(frame.seq * self._ratio)
         if not repeats:
@@ -127,11 +145,17 @@ class ReceiveSession:
             for sink in self._sinks:
                 sink.write(image)
         self.written += repeats
-        self.latency.append(time.perf_counter() - arrived)
+        took = time.perf_counter() - arrived
+        self.latency.append(took)
+        self.latency_max = max(self.latency_max, took)
 
     def close(self) -> None:
+        """Closes the sinks and finishes the dump (none is written if no frame arrived)."""
         for sink in self._sinks:
             sink.close()
+        if self._dump is not None:
+            dump, self._dump = self._dump, None
+            dump.close({"names": np.array(self._header.names), "fps": self._header.fps})
 
     def stats(self, seconds: float) -> dict:
         """Frames decoded, written, concealed and interpolated, decoder counters, latency in ms;
@@ -140,9 +164,8 @@ class ReceiveSession:
         secure = getattr(self.source.decoder, "security", None) if self.source is not None else None
         ms = np.array(self.latency) * 1000 if self.latency else np.zeros(1)
         return {
-            "frames": len(self.decoded), "written": self.written,
-            "concealed": sum(f.concealed for f in self.decoded),
-            "interpolated": sum(f.interpolated for f in self.decoded),
+            "frames": self.frames, "written": self.written, "concealed": self.concealed,
+            "interpolated": self.interpolated,
             "damage_reports": s.damaged if s else 0, "packets": s.packets if s else 0,
             "duplicates": s.duplicates if s else 0, "skipped_bytes": s.skipped_bytes if s else 0,
             "ended": bool(self.source and self.source.decoder.ended),
@@ -150,8 +173,8 @@ class ReceiveSession:
             "output_fps": float(self._fps or self._header.fps) if self._header else None,
             "face": self.face_kind, "face_id": self.face_id, "look": self.look,
             "latency_ms": {"median": round(float(np.median(ms)), 2), "p95": round(float(np.percentile(ms, 95)), 2),
-                           "max": round(float(ms.max()), 2)},
-            "frames_per_second": round(len(self.decoded) / max(seconds, 1e-9), 1),
+                           "max": round(1000 * self.latency_max, 2)},
+            "frames_per_second": round(self.frames / max(seconds, 1e-9), 1),
             "security": secure.as_dict() if secure else None,
         }
 
@@ -162,14 +185,11 @@ class ReceiveSession:
                 f"{s['latency_ms']['median']:.1f} ms median, {s['latency_ms']['max']:.1f} ms max, "
                 f"{s['frames_per_second']:.1f} frames/s" + _security_summary(s["security"]))
 
-    def write_dump(self, path: str) -> None:
-        """Per decoded frame: parameters, frame number and flags; the layout and rate."""
-        header = self._header
-        np.savez_compressed(
-            path, params=np.array([f.params for f in self.decoded]), names=np.array(header.names),
-            seq=np.array([f.seq for f in self.decoded]), face_seen=np.array([f.face_seen for f in self.decoded]),
-            concealed=np.array([f.concealed for f in self.decoded]),
-            interpolated=np.array([f.interpolated for f in self.decoded]), fps=header.fps)
+
+def decoded_dump(path: str, k: int) -> NpzAppender:
+    """fd-recv --dump: per decoded frame its k parameters, number and flags; the layout and rate."""
+    return NpzAppender(path, {"params": (np.float64, (k,)), "seq": (np.int64, ()), "face_seen": (np.bool_, ()),
+                              "concealed": (np.bool_, ()), "interpolated": (np.bool_, ())})
 
 
 def _security_summary(s: dict | None) -> str:

@@ -25,7 +25,7 @@ from protocol.secure import MAGIC
 from protocol.secure_stream import SecureDatagramDecoder, SecureStreamDecoder
 from protocol.stream import Damage, DatagramDecoder, StreamDecoder
 
-CHUNK = 1 << 16
+CHUNK = 1 << 10  # bytes read at a time: a batch of events (a few hundred frames) stays small however long the file
 DEFAULT_HOST = "127.0.0.1"  # listening on every interface is a choice the user makes by name
 RCVBUF = 4 << 20  # bytes of UDP socket buffer asked for (Linux caps it at net.core.rmem_max)
 QUEUE = 1024  # batches of decoded events waiting for the renderer

@@ -4,10 +4,11 @@ import argparse
 import json
 import sys
 
+from codec.regions import RULES
 from common.cli import ArgumentParser, check_output, number, run_main
 from protocol.secure import TAG_BITS
 from sender.analysis import LAYOUT_NAMES
-from sender.config import LIMITS, SendConfig, default
+from sender.config import BITRATE, LIMITS, SendConfig, default
 
 EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
@@ -32,9 +33,13 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="read camera N instead of a file (Ctrl-C stops)")
     p.add_argument("--fps", type=number(0.1, 1000), default=25.0,
                    help="frame rate of an image sequence, 0.1-1000 (default 25)")
+    p.add_argument("--realtime", action="store_true",
+                   help="read the input at its frame rate, as a camera delivers frames (a live call from a "
+                        "file, e.g. with -o udp://HOST:PORT); by default a file is read as fast as it is analysed")
     p.add_argument("-o", "--output", default="-", metavar="DEST",
-                   help="a file, - for stdout (default), tcp://HOST:PORT (connect and write the stream) "
-                        "or udp://HOST:PORT (one packet per datagram)")
+                   help="a file, - for stdout (default), tcp://HOST:PORT (connect, waiting up to 5 s for the "
+                        "receiver, and write the stream) or udp://HOST:PORT (one packet per datagram, behind a "
+                        "copy of the one before against loss, the header repeated for receivers that join late)")
     p.add_argument("--params", choices=LAYOUT_NAMES, default=default("layout"),
                    help="auto (default): personal when the --face file carries a motion basis, else mouth; "
                         "paper: the paper's 13 parameters (jaw angle, four mouth points) and head rotation; "
@@ -42,6 +47,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "mouth: the paper's plus six more lip points and jaw translation; "
                         "personal: the coefficients of the person's own motion basis and head rotation "
                         "(needs --face from fd-enroll of a clip of them talking)")
+    p.add_argument("--rule", choices=RULES, default=default("rule"),
+                   help="deformation rule, named in the stream header: refined (default: the project's mouth "
+                        "slit and rounded lower lip) or paper (the paper's equations (1) and (2) exactly); "
+                        "--params paper alone keeps refined: the paper exactly is --params paper --rule paper")
     p.add_argument("--face", metavar="FILE.fdface",
                    help="the person's face model from fd-enroll: fitted here and carried once at the start "
                         "of the stream (its bytes are counted apart from the per-frame rate); default: the "
@@ -55,7 +64,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="temporal smoothing strength: 0 off, 1 (default), 2 twice as strong "
                         f"(steadier and cheaper, slower to follow), at most {LIMITS['smoothing'][1]:g}")
     rate = p.add_mutually_exclusive_group()
-    rate.add_argument("--bitrate", type=number(LIMITS["bitrate"][0] / 1000, LIMITS["bitrate"][1] / 1000),
+    rate.add_argument("--bitrate", type=number(BITRATE[0] / 1000, BITRATE[1] / 1000),
                       metavar="KBPS",
                       help="aim at this many kbit/s instead of a --quality: the finest level that codes the "
                            "first second of this call within it (a choice made once, not a cap: livelier "
@@ -117,20 +126,24 @@ def _run(args) -> int:
     from common.keys import read_key
     from common.progress import progress_for
     from sender.session import SendSession
-    from sender.sources import open_source
-    from sender.transport import open_sink
+    from sender.sources import PacedSource, open_source
+    from sender.transport import check_destination, open_sink
 
     check_output(args.output, "-o", (args.input,))
+    check_destination(args.output)
     if args.dump:
         check_output(args.dump, "--dump", (args.input,))
     key = read_key(args.key) if args.key else None
     source = open_source(args.input, args.camera, args.fps)
+    if args.realtime and args.camera is None:
+        source = PacedSource(source)
     progress = progress_for("fd-send", args.quiet or args.json) if source.length else None
     config = SendConfig(args.quality, args.frames_per_packet, args.params, args.neutral, args.smoothing, args.face,
                         embed_face=not args.face_by_id, key=key, tag_bits=args.tag_bits or default("tag_bits"),
                         dead_zone=args.dead_zone, bitrate=None if args.bitrate is None else 1000 * args.bitrate,
-                        basis=not args.no_basis, divisor=args.send_every)
-    session = SendSession(source, config)
+                        basis=not args.no_basis, divisor=args.send_every,
+                        datagrams=args.output.startswith("udp://"), rule=args.rule)
+    session = SendSession(source, config, args.dump)
     sink = None
     try:
         for packets in session.packets():
@@ -138,7 +151,7 @@ def _run(args) -> int:
                 sink = open_sink(args.output, sealed=session.sealed)
             sink.write(packets)
             if progress:
-                progress.update(len(session.frames), source.length, f"{len(session.frames)} frames")
+                progress.update(session.frame_count, source.length, f"{session.frame_count} frames")
     except KeyboardInterrupt:  # a camera runs until stopped: close the stream properly
         if sink is not None:
             sink.write(session.end())
@@ -147,8 +160,7 @@ def _run(args) -> int:
             progress.close()
         if sink is not None:
             sink.close()
-        if args.dump and session.frames:
-            session.write_dump(args.dump)
+        session.close()
     if args.json:
         print(json.dumps(session.stats()), file=sys.stderr)
     elif not args.quiet:

@@ -8,6 +8,7 @@ whether it came from the command line or from code.
 
 from dataclasses import dataclass, fields
 
+from codec.regions import DEFAULT_RULE, check_rule
 from common.cli import describe_range, in_range
 from common.errors import InputError
 from protocol.encoder import MAX_DEAD_ZONE
@@ -44,7 +45,10 @@ class SendConfig:
     ``quality`` (the finest level that codes the call's first second within it, chosen before the
     header goes out); basis: code the principal components of the first second's motion
     (``protocol.basis``) instead of each parameter; divisor: send one frame in this many, the
-    receiver interpolates the others.
+    receiver interpolates the others; datagrams: the packets go one per UDP datagram, made ready
+    for loss and late join by ``protocol.encoder.Datagrams``; rule: the deformation rule
+    (``codec.regions.RULES``) the parameters are fitted to and the receiver deforms with, named in
+    the header.
     """
 
     quality: int = DEFAULT_QUALITY
@@ -60,6 +64,8 @@ class SendConfig:
     bitrate: float | None = None
     basis: bool = True
     divisor: int = 1
+    datagrams: bool = False
+    rule: str = DEFAULT_RULE
 
     def __post_init__(self) -> None:
         for name, (lo, hi) in LIMITS.items():
@@ -68,6 +74,7 @@ class SendConfig:
                 raise InputError(f"{name.replace('_', ' ')} must be {describe_range(lo, hi)}, not {value!r}")
         if self.layout not in LAYOUT_NAMES:
             raise InputError(f"unknown layout {self.layout!r} (one of {', '.join(LAYOUT_NAMES)})")
+        check_rule(self.rule)
         if self.tag_bits not in TAG_BITS:
             raise InputError(f"tag bits must be a multiple of 8 from {TAG_BITS[0]} to {TAG_BITS[-1]}")
 

@@ -3,16 +3,27 @@
 import time
 from collections.abc import Iterator, Sequence
 from itertools import chain, islice
+from pathlib import Path
 
 import numpy as np
 
-from codec.deform import POSE_PARAMS
+from codec.deform import GLOBAL_PARAMS, POSE_PARAMS
 from codec.face_file import decode_face, read_face_bytes
 from codec.face_model import load_base_face
 from codec.motion_basis import BASIS_PARAMS
+from codec.regions import DEFAULT_RULE
+from common.npz import NpzAppender
 from protocol.basis import principal_basis
 from protocol.secure import SecureSealer
-from protocol.stream import DEFAULT_QUALITY, Header, PacketEncoder, frame_bytes, quality_for_bitrate, steps_for
+from protocol.stream import (
+    DEFAULT_QUALITY,
+    Datagrams,
+    Header,
+    PacketEncoder,
+    frame_bytes,
+    quality_for_bitrate,
+    steps_for,
+)
 from sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
 from sender.config import SendConfig
 from sender.sources import open_source
@@ -20,25 +31,24 @@ from sender.sources import open_source
 
 def stream_header(names: tuple[str, ...], fps: float, face_id: str, quality: int = DEFAULT_QUALITY,
                   model_size: int = 0, basis: np.ndarray | None = None, divisor: int = 1,
-                  sealed: bool = False, size: tuple[int, int] = (0, 0)) -> Header:
+                  size: tuple[int, int] = (0, 0), rule: str = DEFAULT_RULE) -> Header:
     """The header fd-send writes: a keyframe a second (of the frames sent: one in ``divisor``), and
     static-frame flags (with the dead zone a still face sends unchanged frames, a flag each);
-    version 6, or 5 for a ``sealed`` stream (whose byte stream reads packet lengths); ``size``: the
-    source's (width, height) in pixels."""
+    ``size``: the source's (width, height) in pixels; ``rule``: the deformation rule fitted to."""
     return Header(fps, names, steps_for(names, quality), face_id, quality=quality,
                   key_interval=max(1, min(255, round(fps / divisor))), divisor=divisor, skip_static=True,
-                  model_size=model_size, basis=basis, self_delimiting=not sealed, width=size[0], height=size[1])
+                  model_size=model_size, basis=basis, width=size[0], height=size[1], rule=rule)
 
 
 def sample_basis(names: tuple[str, ...], sample: list[np.ndarray]) -> np.ndarray | None:
-    """The coding basis of ``protocol.basis`` for a sample of the call's parameters, head pose apart;
+    """The coding basis of ``protocol.basis`` for a sample of the call's parameters, head pose and global motion apart;
     None for a layout with a motion basis's coefficients, which are decorrelated already (a coding
     basis on top saved 0-7 % on the dev clips' held-out halves and cost 0-5 % more on fd-experiment's
     4 s clips, for 144-324 header bytes). Steps scale alike at every level, so the basis does not
     depend on the level."""
     if any(n in BASIS_PARAMS for n in names):
         return None
-    return principal_basis(np.array(sample), steps_for(names), [n in POSE_PARAMS for n in names])
+    return principal_basis(np.array(sample), steps_for(names), [n in POSE_PARAMS + GLOBAL_PARAMS for n in names])
 
 
 def first_second(fps: float) -> int:
@@ -70,14 +80,35 @@ def read_dump(path, layout: tuple[str, ...] | None = None) -> tuple[tuple[str, .
     return tuple(layout), fps, params[:, [names.index(n) for n in layout]], found
 
 
+def dump_writer(path: str | Path, k: int) -> NpzAppender:
+    """The research dump, written as frames pass (``FrameAnalysis`` rows by :func:`dump_row`):
+    per frame landmarks (pixels), pose-free targets (base-face units), face seen, head pose (NaN
+    without a face) and the k unquantised parameters; :func:`read_dump` reads it."""
+    return NpzAppender(path, {"landmarks": (np.float32, (468, 3)), "targets": (np.float32, (468, 3)),
+                              "found": (np.bool_, ()), "pose_rotation": (np.float64, (3, 3)),
+                              "pose_translation": (np.float64, (3,)), "pose_scale": (np.float64, ()),
+                              "params": (np.float64, (k,))})
+
+
+def dump_row(f: FrameAnalysis) -> dict:
+    """One frame's row of :func:`dump_writer`."""
+    row: dict[str, object] = {"found": f.landmarks is not None, "params": f.params}
+    if f.landmarks is not None and f.pose is not None:  # else NaN
+        row.update(landmarks=f.landmarks, targets=f.target, pose_rotation=f.pose.rotation,
+                   pose_translation=f.pose.translation, pose_scale=f.pose.scale)
+    return row
+
+
 class SendSession:
     """Opens the source and the models; :meth:`packets` yields the packets as frames are analysed.
 
     source: a path (video file, image directory or %d pattern) or an opened
-    source (``sender.sources``); config: how the call is coded (:class:`sender.config.SendConfig`).
+    source (``sender.sources``); config: how the call is coded (:class:`sender.config.SendConfig`);
+    dump: a .npz path to write the research dump to (:func:`dump_writer`), finished by :meth:`close`.
+    Memory does not grow with the call: only counters are kept of the frames sent.
     """
 
-    def __init__(self, source, config: SendConfig | None = None) -> None:
+    def __init__(self, source, config: SendConfig | None = None, dump: str | Path | None = None) -> None:
         from sender.tracker import FaceTracker
 
         self.config = config = config or SendConfig()
@@ -91,11 +122,14 @@ class SendSession:
             model = data if config.embed_face else b""
         fps = self.source.fps
         self.analyser = FaceAnalyser(FaceTracker(), face, fps, config.layout, calibration_frames=round(fps),
-                                     neutral=config.neutral, smoothing=Smoothing(config.smoothing))
-        self._face_id, self._model, self._basis = face.content_id, model, None
+                                     neutral=config.neutral, smoothing=Smoothing(config.smoothing), rule=config.rule)
+        self._face_id, self._model = face.content_id, model
+        self._basis: np.ndarray | None = None
         self.sealer = None if config.key is None else SecureSealer(config.key, config.tag_bits)
         self._configure(config.quality)
-        self.frames: list[FrameAnalysis] = []
+        self.frame_count = 0
+        self._dump_path = dump
+        self._dump: NpzAppender | None = None
         self.stream_bytes = 0  # as a byte stream (sync bytes included), header excluded
         self.header_bytes = 0
         self._ended = False
@@ -108,11 +142,12 @@ class SendSession:
 
     def _header(self, quality: int) -> Header:
         return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model),
-                             self._basis, self.config.divisor, self.sealed, self.source.size)
+                             self._basis, self.config.divisor, self.source.size, self.config.rule)
 
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)
         self.encoder = PacketEncoder(self.header, self.config.frames_per_packet, self._model, self.config.dead_zone)
+        self.datagrams = Datagrams(self.encoder.header()[0], sealer=self.sealer) if self.config.datagrams else None
 
     def packets(self) -> Iterator[list[bytes]]:
         """Lists of packets: the header once a face is known (a clip without one sends nothing),
@@ -138,7 +173,11 @@ class SendSession:
                     header.insert(0, self.sealer.preamble())
                 self.header_bytes = len(frame_bytes(header, self.sealed))
                 yield header
-            self.frames.append(result)
+            self.frame_count += 1
+            if self._dump_path is not None:
+                if self._dump is None:
+                    self._dump = dump_writer(self._dump_path, len(self.header.names))
+                self._dump.add(**dump_row(result))
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
             self.stream_bytes += len(frame_bytes(packets, self.sealed))
             if packets:
@@ -147,7 +186,7 @@ class SendSession:
 
     def end(self) -> list[bytes]:
         """The end mark (and the last pending packet), once; [] if already sent or nothing was."""
-        if self._ended or not self.frames:
+        if self._ended or not self.frame_count:
             return []
         self._ended = True
         packets = self._seal(self.encoder.end())
@@ -155,6 +194,8 @@ class SendSession:
         return packets
 
     def _seal(self, packets: list[bytes]) -> list[bytes]:
+        if self.datagrams is not None:
+            return self.datagrams.add(packets)
         return packets if self.sealer is None else self.sealer.seal_all(packets)
 
     def stream(self) -> Iterator[bytes]:
@@ -165,7 +206,7 @@ class SendSession:
 
     def stats(self) -> dict:
         """Frames, frames without a face, bits per frame, bit rate, processing speed, rest frame."""
-        n = len(self.frames)
+        n = self.frame_count
         bits = 8 * self.stream_bytes / max(n, 1)
         rest = self.analyser.rest
         return {"frames": n, "frames_without_face": self.analyser.frames_without_face,
@@ -184,22 +225,10 @@ class SendSession:
                 f"(+{s['header_bytes']} header bytes), rest face: frame {s['rest_frame']}, "
                 f"{s['frames_per_second']:.1f} frames/s")
 
-    def write_dump(self, path: str) -> None:
-        """Per frame: landmarks (pixels), pose-free targets (base-face units), head pose (NaN without
-        a face) and unquantised parameters; and the rest frame's index."""
-        n = len(self.frames)
-        landmarks = np.full((n, 468, 3), np.nan, dtype=np.float32)
-        targets = np.full((n, 468, 3), np.nan, dtype=np.float32)
-        rotation = np.full((n, 3, 3), np.nan)
-        translation = np.full((n, 3), np.nan)
-        scale = np.full(n, np.nan)
-        for i, f in enumerate(self.frames):
-            if f.landmarks is not None:
-                landmarks[i], targets[i] = f.landmarks, f.target
-                rotation[i], translation[i], scale[i] = f.pose.rotation, f.pose.translation, f.pose.scale
-        np.savez_compressed(
-            path, landmarks=landmarks, targets=targets, found=np.array([f.landmarks is not None for f in self.frames]),
-            pose_rotation=rotation, pose_translation=translation, pose_scale=scale,
-            params=np.array([f.params for f in self.frames]), names=np.array(self.header.names),
-            rest_frame=-1 if self.analyser.rest is None else self.analyser.rest.index,
-            fps=self.source.fps, width=self.source.size[0], height=self.source.size[1])
+    def close(self) -> None:
+        """Finishes the dump, if one was asked for and a frame was sent (else no file is written)."""
+        if self._dump is not None:
+            dump, self._dump = self._dump, None
+            dump.close({"names": np.array(self.header.names),
+                        "rest_frame": -1 if self.analyser.rest is None else self.analyser.rest.index,
+                        "fps": self.source.fps, "width": self.source.size[0], "height": self.source.size[1]})

@@ -60,7 +60,20 @@ def _address(url: str) -> tuple[str, int]:
         port = None
     if not parts.hostname or port is None:
         raise InputError(f"{url}: expected {parts.scheme}://HOST:PORT")
+    if not 1 <= port <= 65535:
+        raise InputError(f"{url}: the port must be 1 to 65535")
+    try:
+        socket.getaddrinfo(parts.hostname, port)
+    except OSError as exc:
+        raise InputError(f"{url}: unknown host ({exc.strerror or exc})") from None
     return parts.hostname, port
+
+
+def check_destination(output: str) -> None:
+    """Refuses, before any work, a udp:// or tcp:// destination that cannot be one (bad port, unknown
+    host); whether a TCP receiver listens is known only when the stream starts."""
+    if output.startswith(("udp://", "tcp://")):
+        _address(output)
 
 
 def _connect(url: str, address: tuple[str, int]) -> socket.socket:

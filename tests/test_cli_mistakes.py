@@ -4,7 +4,7 @@ import sys
 
 import pytest
 
-from tests.test_cli import ROOT, assert_one_line_error, run
+from tests.support import CLIP, RECV, ROOT, SEND, assert_one_line_error, run
 
 ANIMATE = [sys.executable, "-m", "receiver.animate"]
 SCRIPT = str(ROOT / "samples" / "animation.txt")
@@ -28,3 +28,41 @@ def test_animate_refuses_a_script_of_absurd_length(tmp_path):
     result = run(ANIMATE + [str(script), "-o", str(tmp_path / "a.mp4")])
     assert_one_line_error(result, "fd-animate")
     assert "lasts" in result.stderr.decode() and not (tmp_path / "a.mp4").exists()
+
+
+@pytest.mark.parametrize("destination, message", [
+    ("udp://127.0.0.1:0", "port must be 1 to 65535"),
+    ("udp://nonexistent.invalid:5000", "unknown host"),
+    ("tcp://nonexistent.invalid:5000", "unknown host"),
+])
+def test_send_destinations_that_cannot_be_are_refused_before_the_work(destination, message):
+    result = run(SEND + [str(CLIP), "-o", destination])
+    assert_one_line_error(result, "fd-send")
+    assert message in result.stderr.decode()
+
+
+@pytest.fixture(scope="module")
+def stream_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("stream") / "s.fd"
+    assert run(SEND + [str(CLIP), "-q", "-o", str(path)]).returncode == 0
+    return path
+
+
+@pytest.mark.parametrize("args, message", [
+    (["-o", "/nonexistent/x.mp4"], "does not exist"),
+    (["-o", "{tmp}/x.mp4", "--dump", "/nonexistent/d.npz"], "does not exist"),
+    (["-o", "{stream}"], "is the input"),
+    (["-o", "{tmp}"], "is a folder"),
+])
+def test_receive_outputs_are_checked_before_the_work(stream_file, tmp_path, args, message):
+    args = [a.format(tmp=tmp_path, stream=stream_file) for a in args]
+    result = run(RECV + [str(stream_file), *args])
+    assert_one_line_error(result, "fd-recv")
+    assert message in result.stderr.decode()
+    assert stream_file.stat().st_size > 0
+
+
+def test_experiment_output_folder_that_cannot_be_made_is_one_line():
+    result = run([sys.executable, "-m", "experiment.cli", str(CLIP), "--out", "/proc/no-such-folder"])
+    assert_one_line_error(result, "fd-experiment")
+    assert "cannot make the folder" in result.stderr.decode()

@@ -11,12 +11,14 @@ import pytest
 
 import sender.tracker
 from codec.face_model import load_base_face
+from receiver.session import ReceiveSession
+from receiver.transport import open_file
 from sender.analysis import FaceAnalyser, Smoothing
 from sender.config import SendConfig
 from sender.session import SendSession, read_dump
 from sender.sources import LoopedSource, PacedSource, VideoSource
+from tests.support import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 FPS = 25.0
 LOST = 97  # every this many frames the face is lost for one frame
 
@@ -129,3 +131,38 @@ def test_a_paced_source_hands_frames_over_no_faster_than_its_rate():
     started = time.monotonic()
     frames = list(PacedSource(source).frames())
     assert len(frames) == 11 and time.monotonic() - started >= 10 / 200.0
+
+
+class NullSink:
+    def write(self, image) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def receive_peak(path: Path, dump: Path) -> tuple[int, ReceiveSession]:
+    """(Python peak bytes, session) of fd-recv's session over the stream file at ``path``, 64x64."""
+    session = ReceiveSession(lambda fps, size: [NullSink()], (64, 64), dump=str(dump))
+    tracemalloc.start()
+    try:
+        session.run(open_file(str(path), None, None))
+        session.close()
+        return tracemalloc.get_traced_memory()[1], session
+    finally:
+        tracemalloc.stop()
+
+
+@pytest.mark.slow
+def test_a_six_times_longer_call_peaks_at_the_same_python_memory_in_the_receiver(replayed, tmp_path):
+    for n in (60, 1000, 6000):
+        session = SendSession(LandmarkSource(n), SendConfig())
+        (tmp_path / f"{n}.fd").write_bytes(b"".join(session.stream()))
+    receive_peak(tmp_path / "60.fd", tmp_path / "60.npz")  # compiled kernels and caches first
+    short, _ = receive_peak(tmp_path / "1000.fd", tmp_path / "1000.npz")
+    long, session = receive_peak(tmp_path / "6000.fd", tmp_path / "6000.npz")
+    assert session.frames == 6000 and session.stats(1.0)["frames"] == 6000
+    # keeping every decoded frame (as before) grew by about 0.5 KB a frame: 2.5 MB here
+    assert long - short < 256 * 1024, (short, long)
+    with np.load(tmp_path / "6000.npz") as dump:
+        assert dump["params"].shape[0] == 6000 and list(dump["seq"][:3]) == [0, 1, 2]

@@ -11,7 +11,7 @@ import pytest
 
 from codec.face_model import load_base_face
 from protocol.stream import DatagramDecoder, Frame, StreamDecoder
-from tests.test_cli import CLIP, SEND, assert_one_line_error, run
+from tests.support import CLIP, SEND, assert_one_line_error, run
 
 FRAMES = 30
 
@@ -113,6 +113,15 @@ def test_the_session_refuses_settings_out_of_range():
                 SendConfig(**{name: float("nan") if isinstance(hi, float) else hi + 1})
     with pytest.raises(InputError, match="layout"):
         SendConfig(layout="nonsense")
+
+
+@pytest.mark.parametrize("rule", ["paper", "refined"])
+def test_the_rule_fitted_to_is_named_in_the_header(rule):
+    result = run(SEND + [str(CLIP), "--params", "paper", "--rule", rule, "-q"])
+    assert result.returncode == 0, result.stderr.decode()
+    decoder = StreamDecoder()
+    decoder.feed(result.stdout)
+    assert decoder.header.rule == rule and (decoder.header.width, decoder.header.height) == (360, 288)
 
 
 def test_tcp_loopback():
