@@ -479,6 +479,10 @@ class ByteStreamDecoder(WrapsPacketDecoder):
     def _no_stream(self) -> str:
         raise NotImplementedError
 
+    def _skip(self, n: int, reason: str) -> list:
+        """Events of ``n`` bytes passed over while looking for a packet."""
+        raise NotImplementedError
+
 
 class StreamDecoder(ByteStreamDecoder):
     """The clear format's byte-stream decoder.

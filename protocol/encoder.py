@@ -88,7 +88,7 @@ class PacketEncoder:
         if index % self._h.divisor:
             return []
         coded = index // self._h.divisor
-        values = hold_or_round(self._h.coordinates(params), 1.0, self._held, self._dead_zone)
+        values = hold_or_round(self._h.coordinates(params), np.ones(len(params)), self._held, self._dead_zone)
         if max(map(abs, values)) >= _MAX_INDEX:
             raise BitstreamError("parameter out of range for the stream's steps")
         self._held, self.reconstruction = values, self._h.values(values)

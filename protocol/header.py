@@ -82,6 +82,8 @@ class Header:
         except (ValueError, TypeError):
             raise BitstreamError("face id must be a sha256 hex string") from None
         object.__setattr__(self, "steps", steps)
+        self._forward: np.ndarray
+        self._inverse: np.ndarray
         if self.basis is not None:
             forward, inverse = basis_matrices(self.basis, len(names))
             object.__setattr__(self, "_forward", forward)

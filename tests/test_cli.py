@@ -11,42 +11,8 @@ import numpy as np
 import pytest
 
 from protocol.quantise import DEAD_ZONE
-from protocol.stream import StreamDecoder
 from sender.calibrate import lip_gap
-from tests.test_output import parse_y4m
-
-ROOT = Path(__file__).resolve().parents[1]
-CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
-SEND = [sys.executable, "-m", "sender.cli"]
-RECV = [sys.executable, "-m", "receiver.cli"]
-
-
-def run(args, stdin=None, **kw):
-    return subprocess.run(args, input=stdin, capture_output=True, cwd=ROOT, timeout=300, **kw)
-
-
-def clip_frames() -> int:
-    cap = cv2.VideoCapture(str(CLIP))
-    n = 0
-    while cap.read()[0]:
-        n += 1
-    return n
-
-
-@pytest.fixture(scope="module")
-def sent(tmp_path_factory):
-    """The sample clip sent once: (stream bytes, sender dump)."""
-    tmp = tmp_path_factory.mktemp("sent")
-    result = run(SEND + [str(CLIP), "--dump", str(tmp / "send.npz")])
-    assert result.returncode == 0, result.stderr.decode()
-    return result.stdout, np.load(tmp / "send.npz")
-
-
-def assert_one_line_error(result, prog):
-    err = result.stderr.decode()
-    assert result.returncode != 0
-    assert "Traceback" not in err
-    assert err.startswith(f"{prog}: ") and err.count("\n") == 1, err
+from tests.support import CLIP, RECV, ROOT, SEND, assert_one_line_error, clip_frames, coded_error, parse_y4m, run
 
 
 def test_pipe_gives_one_frame_per_input_frame_at_its_rate(tmp_path):
@@ -74,14 +40,6 @@ def test_sender_dump_has_landmarks_pose_and_params(sent):
     assert dump["params"].shape == (n, len(dump["names"]))
     assert dump["pose_rotation"].shape == (n, 3, 3)
     np.testing.assert_allclose(np.linalg.det(dump["pose_rotation"]), 1.0, atol=1e-6)
-
-
-def coded_error(stream: bytes, decoded: np.ndarray, meant: np.ndarray):
-    """(the stream's header, (n, k) |decoded - meant| along the header's coded axes, in steps)."""
-    decoder = StreamDecoder()
-    decoder.feed(stream)
-    h = decoder.header
-    return h, np.abs(np.array([h.coordinates(d) - h.coordinates(m) for d, m in zip(decoded, meant)]))
 
 
 def test_decoded_jaw_angle_follows_the_mouth_opening(sent, tmp_path):

@@ -1,6 +1,5 @@
 """fd-enroll on the bundled clip: a personal model that differs from the generic face, and one-line errors."""
 
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -10,9 +9,7 @@ from codec.face_file import face_id, load_face_file
 from codec.face_model import load_base_face
 from codec.picture import face_texture
 from sender.enroll import main
-
-ROOT = Path(__file__).resolve().parents[1]
-CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
+from tests.support import CLIP
 
 
 def one_line_error(capsys, code):

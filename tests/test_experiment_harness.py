@@ -7,7 +7,6 @@ import json
 import math
 import shutil
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,9 +15,8 @@ from common.errors import FdError
 from experiment import cli
 from experiment.cli import _clip, main
 from protocol.framing import packet_size
+from tests.support import CLIP
 
-ROOT = Path(__file__).resolve().parents[1]
-CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
 ARGS = ["--seconds", "2", "--sizes", "128", "--qualities", "3", "--baselines", "x264", "--rungs", "3", "-q"]
 PIXEL = {"psnr": (5, 60), "psnr_p5": (5, 60), "ssim": (-1, 1), "ms_ssim": (0, 1), "vmaf": (0, 100)}
 KEYPOINT = {"akd": (0, 1), "mouth_akd": (0, 1), "akd_aligned": (0, 0.5), "mouth_akd_aligned": (0, 0.5),

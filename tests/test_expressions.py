@@ -9,9 +9,9 @@ import pytest
 from numpy.testing import assert_allclose
 
 from codec.deform import EXTENDED_PARAMS, Deformer
-from common.errors import InputError
 from codec.expressions import AU_FILE, EXPRESSION_FILE, au_params, default_tables, expression_params, load_tables
 from codec.face_model import load_base_face
+from common.errors import InputError
 from receiver.animate import interpolate, main
 
 FACE = load_base_face()

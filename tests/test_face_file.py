@@ -9,21 +9,11 @@ import pytest
 
 from codec.deform import PAPER_PARAMS, Deformer
 from codec.face_file import decode_face, encode_face, load_face_file, personal_face, save_face_file
-from codec.face_model import ReferencePicture, load_base_face, mouth_vertices
 from codec.picture import Placement
 from common.errors import InputError
+from tests.support import BASE, a_person, a_picture, a_picture_with_a_mouth, as_version, with_info
 
-BASE = load_base_face()
 GENERIC_ID = "29d964b2735ca5b817cf688586b0cdcbe7dae01b01573aa45c8ce855b3d3a966"
-
-
-def a_person(seed=0):
-    """(468, 3) landmarks of a made-up person in arbitrary units and offset, and a texture."""
-    rng = np.random.default_rng(seed)
-    neutral = (BASE.vertices * [1.1, 1.0, 0.9] + rng.normal(0, 0.004, BASE.vertices.shape)) * 7.0 + 3.0
-    y, x = np.mgrid[0:64, 0:64]
-    texture = np.dstack([4 * x, 4 * y, 128 + 60 * np.sin(x / 5.0 + seed)]).astype(np.uint8)
-    return neutral, texture
 
 
 def test_the_generic_face_keeps_its_id_and_has_no_texture():
@@ -101,13 +91,6 @@ def test_missing_file_and_directory_are_refused(tmp_path):
         load_face_file(tmp_path)
 
 
-def a_picture(w=96, h=80):
-    """A textured (h, w, 3) picture and a projection putting the normalised face in its middle."""
-    y, x = np.mgrid[0:h, 0:w]
-    image = np.dstack([x * 2, y * 3, 100 + 50 * np.sin(x / 4.0)]).astype(np.uint8)
-    return ReferencePicture(image, Placement(40.0, np.eye(3), np.array([w / 2, -h / 2, 0.0])).matrix())
-
-
 def test_the_reference_picture_round_trips():
     neutral, texture = a_person()
     picture = a_picture()
@@ -118,30 +101,6 @@ def test_the_reference_picture_round_trips():
     lossless = decode_face(encode_face(face, picture_format=".png"))
     np.testing.assert_array_equal(lossless.picture.image, face.picture.image)
     assert decode_face(personal_face(neutral, texture)).picture is None
-
-
-def as_version(data: bytes, version: int) -> bytes:
-    """A current face file rewritten as an older version (1-3) would have held it: the feature points
-    written out, the motion basis's patterns as <f4, no ring weights; before 3, no picture; before 2,
-    no motion basis."""
-    n = int.from_bytes(data[8:12], "little")
-    info = json.loads(data[12:12 + n])
-    pos = 12 + n
-    mesh = data[pos:pos + 20 * info["vertices"] + 6 * info["faces"]]
-    pos += len(mesh)
-    k, c, _ = info.get("motion", (0, 0, ""))
-    motion = data[pos:pos + 2 * k] + np.frombuffer(data, "<f2", 3 * c * k, pos + 2 * k).astype("<f4").tobytes()
-    images = data[pos + 2 * k + 6 * c * k:]
-    if info["meta"] == "base":
-        info["meta"] = BASE.meta
-    info.pop("rings", None)
-    if version < 3:
-        for field in ("picture", "projection", "mouth", "mouth_points"):
-            info.pop(field, None)
-        images = images[:info["texture"]]
-    assert version >= 2 or not k
-    text = json.dumps(info).encode()
-    return data[:6] + bytes([version, 0]) + len(text).to_bytes(4, "little") + text + mesh + motion + images
 
 
 def test_files_of_older_versions_are_still_read():
@@ -189,17 +148,8 @@ def test_ring_weights_round_trip_and_must_fit_the_face():
     np.testing.assert_allclose(decode_face(data).picture.ring_weights, weights, atol=0.5 / 255)
     for rings in ([1] * 143, [256] * 144, [-1] * 144, "x", [[1, 2]] * 72, [float("inf")] * 144):
         with pytest.raises(InputError) as info:
-            decode_face(_with_info(data, rings=rings), "me.fdface")
+            decode_face(with_info(data, rings=rings), "me.fdface")
         assert "\n" not in str(info.value) and str(info.value).startswith("me.fdface: ")
-
-
-def _with_info(data: bytes, **changes) -> bytes:
-    """The file with its JSON description changed (and its length field kept right)."""
-    n = int.from_bytes(data[8:12], "little")
-    info = json.loads(data[12:12 + n])
-    info.update(changes)
-    text = json.dumps(info).encode()
-    return data[:8] + len(text).to_bytes(4, "little") + text + data[12 + n:]
 
 
 def _projection(scale=40.0, shift=(48.0, -40.0, 0.0), rotation=None):
@@ -224,7 +174,7 @@ def test_hostile_picture_fields_are_refused_in_one_line(changes, message):
     neutral, texture = a_person()
     data = personal_face(neutral, texture, picture=a_picture())
     with pytest.raises(InputError, match=message) as info:
-        decode_face(_with_info(data, **changes), "me.fdface")
+        decode_face(with_info(data, **changes), "me.fdface")
     assert "\n" not in str(info.value) and str(info.value).startswith("me.fdface: ")
 
 
@@ -236,7 +186,7 @@ def test_a_picture_of_another_size_than_declared_is_refused(size, message):
     n = int.from_bytes(data[8:12], "little")
     picture_bytes = json.loads(data[12:12 + n])["picture"][0]
     with pytest.raises(InputError, match=message):
-        decode_face(_with_info(data, picture=[picture_bytes, *size]))
+        decode_face(with_info(data, picture=[picture_bytes, *size]))
 
 
 def test_a_damaged_picture_is_refused():
@@ -244,12 +194,6 @@ def test_a_damaged_picture_is_refused():
     data = personal_face(neutral, texture, picture=a_picture())
     with pytest.raises(InputError, match="reference picture is not"):
         decode_face(data.replace(b"RIFF", b"JUNK"))
-
-
-def a_picture_with_a_mouth():
-    mouth = np.full((10, 16, 3), 200, np.uint8)
-    points = np.linspace([1.0, 1.0], [15.0, 9.0], len(mouth_vertices(BASE)))
-    return replace(a_picture(), mouth=mouth, mouth_points=points)
 
 
 def test_the_open_mouth_round_trips():
@@ -272,5 +216,5 @@ def test_hostile_open_mouth_fields_are_refused_in_one_line(changes, message):
     neutral, texture = a_person()
     data = personal_face(neutral, texture, picture=a_picture_with_a_mouth())
     with pytest.raises(InputError, match=message) as info:
-        decode_face(_with_info(data, **changes), "me.fdface")
+        decode_face(with_info(data, **changes), "me.fdface")
     assert "\n" not in str(info.value)

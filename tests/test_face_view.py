@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from codec.deform import PAPER_PARAMS
-from common.errors import BitstreamError
 from codec.face_model import load_base_face
+from common.errors import BitstreamError
 from protocol.stream import Header, steps_for
 from receiver.face_view import FaceView
 

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from codec.face_file import decode_face, encode_face, personal_face
 from common.errors import FdError
-from tests.test_face_file import _with_info, a_person, a_picture_with_a_mouth
+from tests.support import a_person, a_picture_with_a_mouth, with_info
 
 DEADLINE = 2.0  # seconds for any one file: a hostile file must not make the reader work long
 
@@ -64,13 +64,13 @@ def test_flipped_and_cut_bytes_give_only_our_error(seed, flips, cut):
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.sampled_from(range(len(SEEDS))), st.dictionaries(st.sampled_from(FIELDS), WEIRD, min_size=1, max_size=3))
 def test_wrong_description_values_give_only_our_error(seed, changes):
-    assert_only_our_errors(_with_info(SEEDS[seed], **changes))
+    assert_only_our_errors(with_info(SEEDS[seed], **changes))
 
 
 @pytest.mark.parametrize("field, value", [("texture", float("inf")), ("picture", [float("inf"), 16, 16]),
                                           ("motion", [float("-inf"), 1, "rest"]), ("mouth", [float("inf"), 1, 1])])
 def test_an_infinite_count_is_our_error(field, value):
-    assert_only_our_errors(_with_info(SEEDS[1], **{field: value}))
+    assert_only_our_errors(with_info(SEEDS[1], **{field: value}))
 
 
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -13,8 +13,7 @@ from protocol.secure import SecureSealer
 from protocol.secure_stream import SecureDatagramDecoder
 from protocol.stream import DatagramDecoder, Datagrams, Frame, Header, PacketEncoder
 from sender.transport import open_sink
-from tests.test_output import parse_y4m
-from tests.test_receiver_tools import KEY, N, finish, header, smooth_tracks, start_listener
+from tests.support import KEY, N, finish, header, parse_y4m, smooth_tracks, start_listener
 
 RNG_SEEDS = range(5)
 
@@ -159,6 +158,7 @@ def test_over_udp_five_percent_loss_keeps_95_percent_good(tmp_path):
     assert stats["frames"] == N and stats["concealed"] <= 0.05 * N and stats["ended"]
 
 
+@pytest.mark.slow
 def test_a_receiver_started_after_the_sender_renders_from_the_next_keyframe(tmp_path):
     """The sender is already sending at the stream's rate when fd-recv starts listening."""
     stream, _ = datagrams(smooth_tracks(), header_every=1)
@@ -214,6 +214,7 @@ def test_a_tcp_sender_waits_for_the_receiver(monkeypatch):
         open_sink(f"tcp://127.0.0.1:{port}")
 
 
+@pytest.mark.slow
 def test_a_receiver_restarted_mid_call_starts_at_once_from_the_headers_it_kept(tmp_path):
     """The header is never sent again; fd-recv --headers kept it from the call's start."""
     stream, _ = datagrams(smooth_tracks(), eager=0, header_every=0)

@@ -3,23 +3,20 @@
 import dataclasses
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
-from common.errors import InputError
+from codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
 from codec.face_file import decode_face, encode_face, load_face_file
 from codec.face_model import load_base_face
 from codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS, MotionBasis, learn_basis
+from common.errors import InputError
 from protocol.quantise import DEAD_ZONE
 from sender.fit import ModelFit
 from sender.motion import FRAMES_PER_PATTERN, learn_motion
-from tests.test_cli import coded_error
+from tests.support import CLIP, ROOT, as_version, coded_error
 
-ROOT = Path(__file__).resolve().parents[1]
-CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
 RNG = np.random.default_rng(7)
 
 
@@ -62,12 +59,10 @@ def test_face_file_carries_the_basis_and_old_files_still_read():
     back = decode_face(data)
     assert back.motion.over == face.motion.over
     np.testing.assert_array_equal(back.motion.vertices, face.motion.vertices)
-    np.testing.assert_allclose(back.motion.vectors, face.motion.vectors, atol=1e-6)
+    np.testing.assert_allclose(back.motion.vectors, face.motion.vectors, rtol=1e-3)  # stored as <f2
     plain = encode_face(load_base_face())
     assert decode_face(plain).motion is None
-    old = bytearray(plain)
-    old[6] = 1  # version 1 had no motion section, and these bytes have none
-    assert decode_face(bytes(old)).motion is None
+    assert decode_face(as_version(plain, 1)).motion is None  # version 1 had no motion section
 
 
 def test_a_damaged_basis_is_refused():
@@ -122,6 +117,7 @@ def _run(cmd):
     return subprocess.run([sys.executable, "-m", *cmd], capture_output=True, cwd=ROOT, timeout=300)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("over", ["rest", "paper"])
 def test_enrol_then_send_the_personal_layout_end_to_end(tmp_path, over):
     face = tmp_path / "me.fdface"
@@ -140,7 +136,9 @@ def test_enrol_then_send_the_personal_layout_end_to_end(tmp_path, over):
     assert got.returncode == 0, got.stderr.decode()
     recv = np.load(tmp_path / "recv.npz")
     paper = PAPER_PARAMS if over == "paper" else ()
-    assert tuple(recv["names"]) == paper + BASIS_PARAMS[:4] + POSE_PARAMS  # and where the head is in the picture
+    # and where the head is in the picture, and how the picture moves if it has a background to show it
+    expected = paper + BASIS_PARAMS[:4] + POSE_PARAMS
+    assert tuple(recv["names"]) in (expected, expected + GLOBAL_PARAMS)
     cols = slice(len(paper), len(paper) + 4)
     coeffs = recv["params"][:, cols]
     assert np.abs(coeffs).max() > 0.002  # the basis is used, frame by frame

@@ -10,6 +10,7 @@ import pytest
 
 from common.errors import InputError
 from receiver.output import open_writer
+from tests.support import parse_y4m
 
 
 def frames(n, size=(64, 48)):
@@ -18,20 +19,6 @@ def frames(n, size=(64, 48)):
         img = np.zeros((h, w, 3), np.uint8)
         img[:, : (i * 7) % w] = (200, 120, 60)
         yield img
-
-
-def parse_y4m(data: bytes):
-    header, _, rest = data.partition(b"\n")
-    fields = dict((f[:1], f[1:]) for f in header.split(b" ")[1:])
-    assert header.startswith(b"YUV4MPEG2 ")
-    w, h = int(fields[b"W"]), int(fields[b"H"])
-    frame_bytes = w * h * 3 // 2
-    count = 0
-    while rest:
-        assert rest.startswith(b"FRAME\n")
-        rest = rest[6 + frame_bytes:]
-        count += 1
-    return fields, count
 
 
 def test_y4m_on_a_stream_parses():

@@ -2,7 +2,6 @@
 enrol, send and receive."""
 
 from dataclasses import replace
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -30,8 +29,8 @@ from protocol.stream import Header, steps_for
 from receiver.face_view import FaceView, PictureView, default_look, open_view
 from sender.motion_global import GlobalMotion, ring_weights
 from sender.tracker import FaceTracker
+from tests.support import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 GRID = ROOT / "samples" / "grid_bbaf2n.mpg"
 BASE = load_base_face()
 NAMES = ("theta", "rx", "ry", "rz", "tx", "ty", "tz")

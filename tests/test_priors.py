@@ -6,7 +6,6 @@ import os
 import subprocess
 import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,8 +17,7 @@ from protocol.quantise import QUALITIES
 from protocol.stream import Frame, Header, StreamDecoder, StreamEncoder, steps_for
 from receiver import cli as receiver_cli
 from sender.analysis import LAYOUTS
-
-ROOT = Path(__file__).resolve().parents[1]
+from tests.support import ROOT
 
 NAMES = ("theta", "v2x", "v2y", "v2z", "v3x", "v3y", "v3z", "v8x", "v8y", "v8z", "v9x", "v9y", "v9z")
 

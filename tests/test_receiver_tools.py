@@ -4,75 +4,30 @@ Sockets are on loopback only; every wait has a deadline.
 """
 
 import json
-import selectors
 import socket
-import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from codec.deform import PAPER_PARAMS
-from codec.face_file import decode_face, personal_face, save_face_file
-from codec.face_model import load_base_face
-from protocol.stream import Header, PacketEncoder, StreamEncoder, frame_bytes, steps_for
-from receiver.cli import main
-from tests.test_output import parse_y4m
-
-ROOT = Path(__file__).resolve().parents[1]
-RECV = [sys.executable, "-m", "receiver.cli"]
-NAMES = PAPER_PARAMS + ("rx", "ry", "rz")
-N, FPS, KEY = 150, 25.0, 25
-DEADLINE = 120  # seconds: generous for a loaded machine, never reached when things work
-GENERIC = load_base_face()
-
-
-def smooth_tracks(n=N) -> np.ndarray:
-    """(n, 16) parameters that move like speech: jaw in degrees, mouth points in face units, head in degrees."""
-    t = np.arange(n)[:, None] / FPS
-    phase = np.arange(len(NAMES))[None, :]
-    scale = np.array([8.0] + [0.02] * 12 + [4.0] * 3)
-    return scale * (0.5 + 0.5 * np.sin(2 * np.pi * (1.5 + 0.1 * phase) * t + phase))
-
-
-def header(face_id=GENERIC.content_id, model_size=0) -> Header:
-    return Header(FPS, NAMES, steps_for(NAMES), face_id, key_interval=KEY, model_size=model_size)
-
-
-def stream_packets(params, fpp=2):
-    """The stream as datagrams: [(packet, (first, last) frame it carries, or None)], header to end mark."""
-    enc = PacketEncoder(header(), fpp)
-    out = [(p, None) for p in enc.header()]
-    first = 0
-    for i, p in enumerate(params):
-        for packet in enc.frame(p, True):
-            out.append((packet, (first, i)))
-            first = i + 1
-    *last, end = enc.end()
-    out += [(p, (first, len(params) - 1)) for p in last] + [(end, None)]
-    return out
-
-
-def start_listener(url, tmp_path, *extra):
-    proc = subprocess.Popen(RECV + ["--listen", url, "-o", str(tmp_path / "out.y4m"), "--size", "64",
-                                    "--dump", str(tmp_path / "recv.npz"), "--json", *extra],
-                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=ROOT, bufsize=0)
-    with selectors.DefaultSelector() as sel:
-        sel.register(proc.stderr, selectors.EVENT_READ)
-        if not sel.select(timeout=DEADLINE):
-            proc.kill()
-            pytest.fail("fd-recv did not start listening")
-    line = proc.stderr.readline().decode()
-    assert line.startswith("fd-recv: listening on "), line
-    return proc, int(line.rsplit(":", 1)[1])
-
-
-def finish(proc):
-    _, err = proc.communicate(timeout=DEADLINE)
-    lines = err.decode().strip().splitlines()
-    assert proc.returncode == 0, err.decode()
-    return json.loads(lines[-1]), lines[:-1]
+from codec.face_file import decode_face
+from protocol.stream import PacketEncoder, frame_bytes
+from tests.support import (
+    DEADLINE,
+    GENERIC,
+    KEY,
+    N,
+    a_face,
+    assert_one_line,
+    finish,
+    header,
+    parse_y4m,
+    run_main,
+    smooth_tracks,
+    start_listener,
+    stream_packets,
+    write_stream,
+)
 
 
 def test_udp_with_five_percent_loss_gives_every_frame_and_resyncs(tmp_path):
@@ -125,35 +80,6 @@ def test_tcp_delivers_every_frame(tmp_path):
     stats, _ = finish(proc)
     assert parse_y4m((tmp_path / "out.y4m").read_bytes())[1] == N
     assert stats["frames"] == N and stats["concealed"] == 0 and stats["ended"] and stats["face"] == "generic"
-
-
-def a_face(tmp_path) -> tuple[Path, bytes]:
-    bent = GENERIC.vertices * [1.1, 1.0, 1.0]
-    texture = np.full((64, 64, 3), (180, 140, 120), np.uint8)
-    data = personal_face(bent, texture)
-    path = tmp_path / "p.fdface"
-    save_face_file(data, path)
-    return path, data
-
-
-def write_stream(path, face_id=GENERIC.content_id, model=b"", n=30) -> Path:
-    enc = StreamEncoder(header(face_id, len(model)), 2, model)
-    path.write_bytes(enc.header() + b"".join(enc.frame(p, True) for p in smooth_tracks(n)) + enc.end())
-    return path
-
-
-def run_main(capsys, args):
-    try:
-        code = main(args)
-    except SystemExit as exc:  # argparse
-        code = exc.code
-    return code, capsys.readouterr().err
-
-
-def assert_one_line(code, err, *words):
-    assert code != 0 and err.startswith("fd-recv: ") and err.count("\n") == 1, err
-    for w in words:
-        assert w in err, err
 
 
 def test_face_file_for_another_stream_is_refused_naming_both_ids(tmp_path, capsys):

@@ -3,10 +3,18 @@
 import numpy as np
 import pytest
 
-from codec.camera import Camera
 from codec import raster
-from codec.face_parts import (IRIS_SCALE, LIPS_GAP, TEETH_BAND, TEETH_SHARE, eye_components, eye_discs,
-                              eye_pieces, teeth_columns)
+from codec.camera import Camera
+from codec.face_parts import (
+    IRIS_SCALE,
+    LIPS_GAP,
+    TEETH_BAND,
+    TEETH_SHARE,
+    eye_components,
+    eye_discs,
+    eye_pieces,
+    teeth_columns,
+)
 from codec.raster import MOUTH_DARK, PUPIL, SCLERA
 from codec.render import DirectionalLight, Material, Renderer, linear_to_srgb, srgb_to_linear
 
@@ -220,6 +228,7 @@ def test_reused_renderer_matches_fresh_one():
         np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.slow
 def test_face_renders_eyes_mouth_and_depth():
     from codec.face_model import load_base_face
 

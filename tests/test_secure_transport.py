@@ -18,14 +18,14 @@ from protocol.secure import SecureSealer
 from protocol.secure_stream import seal_stream
 from protocol.stream import PacketEncoder, frame_bytes
 from sender.keygen import main as keygen
-from tests.test_output import parse_y4m
-from tests.test_receiver_tools import (
+from tests.support import (
     DEADLINE,
     N,
     a_face,
     assert_one_line,
     finish,
     header,
+    parse_y4m,
     run_main,
     smooth_tracks,
     start_listener,

@@ -4,7 +4,6 @@ The texture comes from a real frame, so the tracker sees a face; the base face
 at rest is frame 0 and serves as the rest face (``neutral=0``).
 """
 
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -17,8 +16,8 @@ from codec.texture import texture_from_frame
 from receiver.face_view import portrait_camera
 from sender.analysis import FaceAnalyser, Smoothing
 from sender.tracker import FaceTracker
+from tests.support import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 GRID = ROOT / "samples" / "grid_bbaf2n.mpg"
 FRAMES = 30
 SIZE = 384

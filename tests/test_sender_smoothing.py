@@ -1,7 +1,6 @@
 """One Euro smoothing: still in, still out; a step is followed quickly; a still face under camera
 noise keeps the receiver's picture still."""
 
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -13,9 +12,9 @@ from sender.analysis import FaceAnalyser, Smoothing
 from sender.session import stream_header
 from sender.smoothing import OneEuroFilter
 from sender.tracker import FaceTracker
+from tests.support import CLIP
 
 RATE = 25.0
-CLIP = Path(__file__).resolve().parents[1] / "samples" / "grid_bbaf2n.mpg"
 
 
 def test_still_input_gives_constant_output_after_settling():

@@ -9,8 +9,8 @@ import pytest
 from common.errors import InputError
 from sender.detector import load_model
 from sender.tracker import FaceTracker
+from tests.support import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 DEV = Path(__file__).resolve().parents[2] / "shared" / "samples" / "dev"
 GRID = ROOT / "samples" / "grid_bbaf2n.mpg"
 MAX_MEDIAN_PX = 1.0

@@ -23,7 +23,7 @@ import pytest
 from common.errors import InputError
 from receiver.viewer import BOUNDARY, Viewer, parse_serve
 from sender.detector import FaceDetector
-from tests.test_receiver_tools import DEADLINE, FPS, RECV, ROOT, smooth_tracks, stream_packets
+from tests.support import DEADLINE, FPS, RECV, ROOT, smooth_tracks, stream_packets
 
 BROWSER = shutil.which("chromium") or shutil.which("chromium-browser")
 CALL = 250  # frames: 10 s

@@ -1,0 +1,18 @@
+"""Fixtures shared by the test modules; plain helpers are in tests/support.py.
+
+Tests that take more than a few seconds are marked ``slow`` (``pytest -m "not slow"`` for a quick run).
+"""
+
+import numpy as np
+import pytest
+
+from tests.support import CLIP, SEND, run
+
+
+@pytest.fixture(scope="session")
+def sent(tmp_path_factory):
+    """The sample clip sent once at fd-send's defaults: (stream bytes, sender dump)."""
+    tmp = tmp_path_factory.mktemp("sent")
+    result = run(SEND + [str(CLIP), "--dump", str(tmp / "send.npz")])
+    assert result.returncode == 0, result.stderr.decode()
+    return result.stdout, np.load(tmp / "send.npz")

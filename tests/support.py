@@ -1,0 +1,207 @@
+"""What several test modules share: paths, running the tools, stream fixtures, output parsing.
+
+Plain helpers, imported by the tests (``from tests.support import ...``); pytest's fixtures and
+markers are in conftest.py.
+"""
+
+import json
+import selectors
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from codec.deform import PAPER_PARAMS
+from codec.face_file import personal_face, save_face_file
+from codec.face_model import ReferencePicture, load_base_face, mouth_vertices
+from codec.picture import Placement
+from protocol.stream import Header, PacketEncoder, StreamDecoder, StreamEncoder, steps_for
+from receiver.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
+SEND = [sys.executable, "-m", "sender.cli"]
+RECV = [sys.executable, "-m", "receiver.cli"]
+
+
+def run(args, stdin=None, **kw):
+    return subprocess.run(args, input=stdin, capture_output=True, cwd=ROOT, timeout=300, **kw)
+
+
+def clip_frames() -> int:
+    cap = cv2.VideoCapture(str(CLIP))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    return n
+
+
+def assert_one_line_error(result, prog):
+    err = result.stderr.decode()
+    assert result.returncode != 0
+    assert "Traceback" not in err
+    assert err.startswith(f"{prog}: ") and err.count("\n") == 1, err
+
+
+def coded_error(stream: bytes, decoded: np.ndarray, meant: np.ndarray):
+    """(the stream's header, (n, k) |decoded - meant| along the header's coded axes, in steps)."""
+    decoder = StreamDecoder()
+    decoder.feed(stream)
+    h = decoder.header
+    return h, np.abs(np.array([h.coordinates(d) - h.coordinates(m) for d, m in zip(decoded, meant)]))
+
+
+def parse_y4m(data: bytes):
+    header, _, rest = data.partition(b"\n")
+    fields = dict((f[:1], f[1:]) for f in header.split(b" ")[1:])
+    assert header.startswith(b"YUV4MPEG2 ")
+    w, h = int(fields[b"W"]), int(fields[b"H"])
+    frame_bytes = w * h * 3 // 2
+    count = 0
+    while rest:
+        assert rest.startswith(b"FRAME\n")
+        rest = rest[6 + frame_bytes:]
+        count += 1
+    return fields, count
+
+# streams of the paper's set with head rotation, for the receiver's tests
+NAMES = PAPER_PARAMS + ("rx", "ry", "rz")
+N, FPS, KEY = 150, 25.0, 25
+DEADLINE = 120  # seconds: generous for a loaded machine, never reached when things work
+GENERIC = load_base_face()
+
+
+def smooth_tracks(n=N) -> np.ndarray:
+    """(n, 16) parameters that move like speech: jaw in degrees, mouth points in face units, head in degrees."""
+    t = np.arange(n)[:, None] / FPS
+    phase = np.arange(len(NAMES))[None, :]
+    scale = np.array([8.0] + [0.02] * 12 + [4.0] * 3)
+    return scale * (0.5 + 0.5 * np.sin(2 * np.pi * (1.5 + 0.1 * phase) * t + phase))
+
+
+def header(face_id=GENERIC.content_id, model_size=0) -> Header:
+    return Header(FPS, NAMES, steps_for(NAMES), face_id, key_interval=KEY, model_size=model_size)
+
+
+def stream_packets(params, fpp=2):
+    """The stream as datagrams: [(packet, (first, last) frame it carries, or None)], header to end mark."""
+    enc = PacketEncoder(header(), fpp)
+    out = [(p, None) for p in enc.header()]
+    first = 0
+    for i, p in enumerate(params):
+        for packet in enc.frame(p, True):
+            out.append((packet, (first, i)))
+            first = i + 1
+    *last, end = enc.end()
+    out += [(p, (first, len(params) - 1)) for p in last] + [(end, None)]
+    return out
+
+
+def start_listener(url, tmp_path, *extra):
+    proc = subprocess.Popen(RECV + ["--listen", url, "-o", str(tmp_path / "out.y4m"), "--size", "64",
+                                    "--dump", str(tmp_path / "recv.npz"), "--json", *extra],
+                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=ROOT, bufsize=0)
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stderr, selectors.EVENT_READ)
+        if not sel.select(timeout=DEADLINE):
+            proc.kill()
+            pytest.fail("fd-recv did not start listening")
+    line = proc.stderr.readline().decode()
+    assert line.startswith("fd-recv: listening on "), line
+    return proc, int(line.rsplit(":", 1)[1])
+
+
+def finish(proc):
+    _, err = proc.communicate(timeout=DEADLINE)
+    lines = err.decode().strip().splitlines()
+    assert proc.returncode == 0, err.decode()
+    return json.loads(lines[-1]), lines[:-1]
+
+
+def a_face(tmp_path) -> tuple[Path, bytes]:
+    bent = GENERIC.vertices * [1.1, 1.0, 1.0]
+    texture = np.full((64, 64, 3), (180, 140, 120), np.uint8)
+    data = personal_face(bent, texture)
+    path = tmp_path / "p.fdface"
+    save_face_file(data, path)
+    return path, data
+
+
+def write_stream(path, face_id=GENERIC.content_id, model=b"", n=30) -> Path:
+    enc = StreamEncoder(header(face_id, len(model)), 2, model)
+    path.write_bytes(enc.header() + b"".join(enc.frame(p, True) for p in smooth_tracks(n)) + enc.end())
+    return path
+
+
+def run_main(capsys, args):
+    try:
+        code = main(args)
+    except SystemExit as exc:  # argparse
+        code = exc.code
+    return code, capsys.readouterr().err
+
+
+def assert_one_line(code, err, *words):
+    assert code != 0 and err.startswith("fd-recv: ") and err.count("\n") == 1, err
+    for w in words:
+        assert w in err, err
+
+
+# face files, for the face-file reader's tests
+BASE = GENERIC
+
+
+def a_picture(w=96, h=80):
+    """A textured (h, w, 3) picture and a projection putting the normalised face in its middle."""
+    y, x = np.mgrid[0:h, 0:w]
+    image = np.dstack([x * 2, y * 3, 100 + 50 * np.sin(x / 4.0)]).astype(np.uint8)
+    return ReferencePicture(image, Placement(40.0, np.eye(3), np.array([w / 2, -h / 2, 0.0])).matrix())
+
+
+def a_person(seed=0):
+    """(468, 3) landmarks of a made-up person in arbitrary units and offset, and a texture."""
+    rng = np.random.default_rng(seed)
+    neutral = (BASE.vertices * [1.1, 1.0, 0.9] + rng.normal(0, 0.004, BASE.vertices.shape)) * 7.0 + 3.0
+    y, x = np.mgrid[0:64, 0:64]
+    texture = np.dstack([4 * x, 4 * y, 128 + 60 * np.sin(x / 5.0 + seed)]).astype(np.uint8)
+    return neutral, texture
+
+def as_version(data: bytes, version: int) -> bytes:
+    """A current face file rewritten as an older version (1-3) would have held it: the feature points
+    written out, the motion basis's patterns as <f4, no ring weights; before 3, no picture; before 2,
+    no motion basis."""
+    n = int.from_bytes(data[8:12], "little")
+    info = json.loads(data[12:12 + n])
+    pos = 12 + n
+    mesh = data[pos:pos + 20 * info["vertices"] + 6 * info["faces"]]
+    pos += len(mesh)
+    k, c, _ = info.get("motion", (0, 0, ""))
+    motion = data[pos:pos + 2 * k] + np.frombuffer(data, "<f2", 3 * c * k, pos + 2 * k).astype("<f4").tobytes()
+    images = data[pos + 2 * k + 6 * c * k:]
+    if info["meta"] == "base":
+        info["meta"] = BASE.meta
+    info.pop("rings", None)
+    if version < 3:
+        for field in ("picture", "projection", "mouth", "mouth_points"):
+            info.pop(field, None)
+        images = images[:info["texture"]]
+    assert version >= 2 or not k
+    text = json.dumps(info).encode()
+    return data[:6] + bytes([version, 0]) + len(text).to_bytes(4, "little") + text + mesh + motion + images
+
+def with_info(data: bytes, **changes) -> bytes:
+    """The file with its JSON description changed (and its length field kept right)."""
+    n = int.from_bytes(data[8:12], "little")
+    info = json.loads(data[12:12 + n])
+    info.update(changes)
+    text = json.dumps(info).encode()
+    return data[:8] + len(text).to_bytes(4, "little") + text + data[12 + n:]
+
+def a_picture_with_a_mouth():
+    mouth = np.full((10, 16, 3), 200, np.uint8)
+    points = np.linspace([1.0, 1.0], [15.0, 9.0], len(mouth_vertices(BASE)))
+    return replace(a_picture(), mouth=mouth, mouth_points=points)
