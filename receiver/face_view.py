@@ -13,6 +13,7 @@ from codec.face_model import BaseFace
 from codec.picture import SceneMesh, face_texture, frame_placement, global_matrix
 from codec.render import Material, Renderer
 from common.errors import BitstreamError, InputError
+from common.stages import View
 from protocol.stream import Header
 
 FIELD_OF_VIEW = 20.0  # degrees: a portrait lens, little perspective distortion
@@ -47,7 +48,7 @@ def output_size(header: Header, face: BaseFace, look: str) -> tuple[int, int]:
     return DEFAULT_SIZE
 
 
-def open_view(look: str, header: Header, face: BaseFace, size: tuple[int, int], check_id: bool = True):
+def open_view(look: str, header: Header, face: BaseFace, size: tuple[int, int], check_id: bool = True) -> View:
     """The view drawing ``look`` (one of LOOKS) of ``face``; InputError if the face cannot show it."""
     if look == "picture":
         if face.picture is None:

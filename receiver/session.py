@@ -4,6 +4,7 @@ import math
 import sys
 import time
 from collections import deque
+from collections.abc import Callable
 from fractions import Fraction
 
 import numpy as np
@@ -12,8 +13,9 @@ from codec.face_file import decode_face
 from codec.face_model import BaseFace, load_base_face
 from common.errors import BitstreamError, InputError
 from common.npz import NpzAppender
+from common.stages import Sink, View
 from protocol.stream import Damage, End, Frame, Header, Model
-from receiver.face_view import FaceView, default_look, open_view, output_size
+from receiver.face_view import default_look, open_view, output_size
 
 LATENCY_WINDOW = 10_000  # frames: latency statistics cover the last 6-7 minutes at 25 fps
 
@@ -35,7 +37,8 @@ class ReceiveSession:
     of the last :data:`LATENCY_WINDOW` frames.
     """
 
-    def __init__(self, open_sinks, size: tuple[int, int] | None, face: BaseFace | None = None,
+    def __init__(self, open_sinks: Callable[[float, tuple[int, int]], list[Sink]], size: tuple[int, int] | None,
+                 face: BaseFace | None = None,
                  face_name: str = "--face", fps: float | None = None, warn=None, look: str | None = None,
                  dump: str | None = None) -> None:
         self._open_sinks, self._size, self._given, self._given_name = open_sinks, size, face, face_name
@@ -44,7 +47,7 @@ class ReceiveSession:
         self._warn = warn or (lambda line: print(f"fd-recv: warning: {line}", file=sys.stderr))
         self._sinks: list = []
         self._header: Header | None = None
-        self._view: FaceView | None = None
+        self._view: View | None = None
         self._ratio = Fraction(1)
         self.source = None
         self.face_kind: str | None = None

@@ -22,6 +22,7 @@ from codec.picture import VIEW_DISTANCE, Placement, head_pivot, relative_pose
 from codec.regions import DEFAULT_RULE
 from codec.upper_face import UPPER_PARAMS
 from common.errors import InputError, NoFaceError
+from common.stages import Tracker
 from protocol.quantise import VECTOR_STEP, steps_for
 from sender.calibrate import RestFace, choose_rest, fapu_ratios
 from sender.fit import ModelFit
@@ -117,7 +118,7 @@ class FaceAnalyser:
     stream header names it.
     """
 
-    def __init__(self, tracker, face: BaseFace, fps: float, layout: str = "auto",
+    def __init__(self, tracker: Tracker, face: BaseFace, fps: float, layout: str = "auto",
                  calibration_frames: int = 25, neutral: int | None = None,
                  smoothing: Smoothing = Smoothing(), rule: str = DEFAULT_RULE) -> None:
         layout = resolve_layout(layout, face)

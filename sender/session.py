@@ -13,6 +13,7 @@ from codec.face_model import load_base_face
 from codec.motion_basis import BASIS_PARAMS
 from codec.regions import DEFAULT_RULE
 from common.npz import NpzAppender
+from common.stages import Source
 from protocol.basis import principal_basis
 from protocol.secure import SecureSealer
 from protocol.stream import (
@@ -108,7 +109,7 @@ class SendSession:
     Memory does not grow with the call: only counters are kept of the frames sent.
     """
 
-    def __init__(self, source, config: SendConfig | None = None, dump: str | Path | None = None) -> None:
+    def __init__(self, source: str | Source, config: SendConfig | None = None, dump: str | Path | None = None) -> None:
         from sender.tracker import FaceTracker
 
         self.config = config = config or SendConfig()

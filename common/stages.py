@@ -1,0 +1,64 @@
+"""What each stage of the chain takes and gives, as small structural interfaces.
+
+frames -> landmarks -> parameters -> bits -> parameters -> pixels: a
+:class:`Source` gives frames, a :class:`Tracker` their landmarks, the
+estimator (``sender.analysis.FaceAnalyser``) parameters, an :class:`Encoder`
+packets, a :class:`Decoder` events (``protocol.events``), a :class:`View`
+pixels, and a :class:`Sink` takes them. Any object with these members is one
+(``typing.Protocol``): tests pass fakes, and mypy checks the real ones where
+they are used.
+"""
+
+from collections.abc import Iterator
+from typing import Protocol
+
+import numpy as np
+
+
+class Source(Protocol):
+    """Frames of a talking face: (H, W, 3) uint8 BGR, at ``fps``; ``size`` is (width, height);
+    ``length`` the frame count when known (progress only), else None."""
+
+    fps: float
+    size: tuple[int, int]
+    length: int | None
+
+    def frames(self) -> Iterator[np.ndarray]: ...
+
+
+class Tracker(Protocol):
+    """One frame -> (468, 3) float32 landmarks in pixels (x right, y down, z away), None without a face."""
+
+    def track(self, frame_bgr: np.ndarray) -> np.ndarray | None: ...
+
+
+class Encoder(Protocol):
+    """Parameters -> packets: the header (and face model) first, then what each frame completes, then the end."""
+
+    def header(self) -> list[bytes]: ...
+
+    def frame(self, params: np.ndarray, face_seen: bool) -> list[bytes]: ...
+
+    def end(self) -> list[bytes]: ...
+
+
+class Decoder(Protocol):
+    """Bytes in any chunking -> events; :meth:`close` at the stream's end."""
+
+    def feed(self, data: bytes) -> list: ...
+
+    def close(self) -> list: ...
+
+
+class View(Protocol):
+    """(k,) parameters of the stream's layout -> one (H, W, 3) uint8 RGB picture."""
+
+    def render(self, params: np.ndarray) -> np.ndarray: ...
+
+
+class Sink(Protocol):
+    """Where pictures go: a video file, stdout, a browser."""
+
+    def write(self, rgb: np.ndarray) -> None: ...
+
+    def close(self) -> None: ...
