@@ -5,7 +5,7 @@ import json
 import sys
 import time
 
-from common.cli import ArgumentParser, check_output, parse_size, run_main
+from common.cli import ArgumentParser, check_output, number, parse_size, run_main
 from receiver.face_view import LOOKS
 
 EPILOG = """examples:
@@ -56,7 +56,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="with --listen udp://: keep each call's stream header in DIR, and start a call whose "
                         "header is there at its first keyframe (a receiver restarted mid-call) instead of "
                         "waiting for the sender to repeat it")
-    p.add_argument("--timeout", type=float, default=5.0, metavar="S",
+    p.add_argument("--timeout", type=number(0.1, 3600), default=5.0, metavar="S",
                    help="with --listen: end after S seconds without data once the stream has started (default 5)")
     p.add_argument("--dump", metavar="FILE.npz", help="also write the decoded parameters of every frame")
     p.add_argument("--json", action="store_true", help="statistics as one JSON object, the last line on stderr")
@@ -66,8 +66,6 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error("give an input file or --listen URL, not both")
     if args.fps is not None and not 0 < args.fps <= 1000:
         p.error("--fps must be above 0 and at most 1000")
-    if args.timeout <= 0:
-        p.error("--timeout must be positive")
     if args.output is None and not (args.show or args.serve):
         args.output = "-"
     return args

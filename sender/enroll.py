@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from codec.motion_basis import MAX_COMPONENTS
-from common.cli import ArgumentParser, run_main
+from common.cli import ArgumentParser, number, run_main
 from sender.motion import FRAMES_PER_PATTERN
 
 EPILOG = """examples:
@@ -50,7 +50,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     pick.add_argument("--auto", action="store_true",
                       help="choose the frame (default): of the first seconds with a face, the one with the "
                            "mouth most closed and the head nearest to frontal")
-    p.add_argument("--seconds", type=float, default=2.0, metavar="S",
+    p.add_argument("--seconds", type=number(0.04, 3600), default=2.0, metavar="S",
                    help="how much of the clip --auto chooses from, counted from the first face (default 2)")
     p.add_argument("--texture-size", type=int, default=TEXTURE_SIZE, metavar="PX",
                    help=f"texture width and height in texels, 64-1024 (default {TEXTURE_SIZE}); with --no-picture "
@@ -63,10 +63,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="rest: the patterns span the whole mouth and jaw motion and replace the paper's "
                         "parameters in --params personal (default: fewest bits for the fidelity); paper: "
                         "they span what the paper's 13 parameters leave over and are sent after them")
-    p.add_argument("--motion-seconds", type=float, default=60.0, metavar="S",
+    p.add_argument("--motion-seconds", type=number(0.04, 36000), default=60.0, metavar="S",
                    help="how much of the clip the motion basis learns from (default 60)")
     p.add_argument("--no-picture", action="store_true",
-                   help="leave out the reference picture (the whole neutral frame, about 10 KB at 256x256): "
+                   help="leave out the reference picture (the whole neutral frame, WebP; docs/picture.md): "
                         "the receiver then draws the face alone")
     p.add_argument("--key", metavar="FILE",
                    help="encrypt the face model at rest with this key (fd-keygen); fd-send and fd-recv open it "
@@ -75,14 +75,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.frame is not None and args.frame < 0:
         p.error("--frame takes a frame index from 0")
-    if args.seconds <= 0:
-        p.error("--seconds must be positive")
     if not 64 <= args.texture_size <= 1024:
         p.error("--texture-size must be 64 to 1024")
     if not 0 <= args.motion <= MAX_COMPONENTS:
         p.error(f"--motion must be 0 to {MAX_COMPONENTS}")
-    if args.motion_seconds <= 0:
-        p.error("--motion-seconds must be positive")
     return args
 
 

@@ -66,3 +66,14 @@ def test_experiment_output_folder_that_cannot_be_made_is_one_line():
     result = run([sys.executable, "-m", "experiment.cli", str(CLIP), "--out", "/proc/no-such-folder"])
     assert_one_line_error(result, "fd-experiment")
     assert "cannot make the folder" in result.stderr.decode()
+
+
+@pytest.mark.parametrize("tool, args", [
+    ("sender.enroll", [str(CLIP), "-o", "{tmp}/f.fdface", "--seconds", "nan"]),
+    ("sender.enroll", [str(CLIP), "-o", "{tmp}/f.fdface", "--motion-seconds", "-1"]),
+    ("receiver.cli", ["--listen", "udp://127.0.0.1:0", "--timeout", "inf"]),
+])
+def test_durations_that_are_not_finite_and_positive_are_refused(tool, args, tmp_path):
+    result = run([sys.executable, "-m", tool, *[a.format(tmp=tmp_path) for a in args]])
+    assert result.returncode == 2 and "out of range" in result.stderr.decode()
+    assert len(result.stderr.decode().strip().splitlines()) == 1
