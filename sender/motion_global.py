@@ -2,7 +2,7 @@
 
 The receiver draws the still reference picture around the moving face; when
 the camera moves, the background and the body move with it, and a picture held
-still is wrong everywhere (DESIGN.md section 4). Per frame, corners of the
+still is wrong everywhere. Per frame, corners of the
 reference picture outside the face are followed into the frame by pyramidal
 Lucas-Kanade flow (starting from the last frame's motion, checked backwards),
 and a similarity is fitted to them with RANSAC: four numbers per frame
