@@ -105,16 +105,15 @@ def _run(args) -> int:
     else:
         picture = reference_picture(rgb, landmarks, aligned, base,
                                     _open_mouth(open_source(args.input), base, args.seconds))
-        picture = replace(picture, ring_weights=_rings(args, decode_face(personal_face(aligned, None, base,
-                                                                                        picture=picture)), index))
-    data = personal_face(aligned, texture, base, picture=picture)
-    motion, note = None, ""
+    motion, rings, frames = _learn(args, decode_face(personal_face(aligned, texture, base, picture=picture)), index)
+    if rings is not None:
+        picture = replace(picture, ring_weights=rings)
+    data = personal_face(aligned, texture, base, motion, picture)
+    note = ""
     if args.motion:
-        motion, frames = _motion(args, decode_face(data), index)
         note = (f", motion basis of {motion.components} patterns over the {args.motion_over} from {frames} frames"
                 if motion is not None else
                 f", no motion basis ({frames} frames with a face; a pattern needs {FRAMES_PER_PATTERN})")
-        data = personal_face(aligned, texture, base, motion, picture) if motion is not None else data
     ident = save_face_file(data, args.output, key)
     print(ident)
     if not args.quiet:
@@ -177,56 +176,50 @@ def _picture_note(picture) -> str:
     return f", reference picture {width}x{height} ({len(encode_picture(picture.image))} bytes, {mouth})"
 
 
-def _motion(args, face, neutral: int):
-    """(the person's MotionBasis or None, frames with a face it was learned from)."""
+def _learn(args, face, neutral: int):
+    """(the person's MotionBasis or None, their ring weights or None, frames with a face seen), from
+    one pass over the clip's first --motion-seconds: the motion basis when --motion asks for one
+    (sender/motion.py), the ring weights when ``face`` has a reference picture
+    (sender/motion_global.RingWeights), each frame tracked once for both."""
     from itertools import islice
 
     from common.progress import progress_for
     from sender.motion import learn_motion, residuals
+    from sender.motion_global import RingWeights
     from sender.sources import open_source
     from sender.tracker import FaceTracker
 
+    rings = None if face.picture is None else RingWeights(face)
+    if not args.motion and rings is None:
+        return None, None, 0
     source = open_source(args.input)
     limit = max(neutral + 1, round(args.motion_seconds * source.fps))
     total = min(limit, source.length or limit)
     progress = progress_for("fd-enroll", args.quiet)
-    update = (lambda n: progress.update(n, total, "learning the motion basis")) if progress else None
+    tracker = _Watched(FaceTracker(), None if rings is None else rings.add)
+    update = (lambda n: progress.update(n, total, "learning how the face, hair and shoulders move")) \
+        if progress else None
     try:
-        residual, vertices = residuals(islice(source.frames(), limit), FaceTracker(), face, source.fps,
+        residual, vertices = residuals(islice(source.frames(), limit), tracker, face, source.fps,
                                        args.motion_over, neutral, update)
     finally:
         if progress:
             progress.close()
-    return learn_motion(residual, vertices, args.motion, args.motion_over), len(residual)
+    motion = learn_motion(residual, vertices, args.motion, args.motion_over) if args.motion else None
+    return motion, None if rings is None else rings.weights(), len(residual)
 
 
-def _rings(args, face, neutral: int) -> np.ndarray:
-    """How far the picture around the face follows the head (sender/motion_global.ring_weights),
-    measured over the frames the motion basis learns from."""
-    from itertools import islice
+class _Watched:
+    """A tracker that also hands each frame and its landmarks to ``watch`` (None: nobody)."""
 
-    from common.progress import progress_for
-    from sender.motion_global import ring_weights
-    from sender.sources import open_source
-    from sender.tracker import FaceTracker
+    def __init__(self, tracker, watch) -> None:
+        self._tracker, self._watch = tracker, watch
 
-    source = open_source(args.input)
-    limit = max(neutral + 1, round(args.motion_seconds * source.fps))
-    total = min(limit, source.length or limit)
-    progress = progress_for("fd-enroll", args.quiet)
-    tracker = FaceTracker()
-
-    def frames():
-        for count, frame in enumerate(islice(source.frames(), limit), 1):
-            if progress:
-                progress.update(count, total, "measuring how the hair and shoulders move")
-            yield frame, tracker.track(frame)
-
-    try:
-        return ring_weights(face, frames())
-    finally:
-        if progress:
-            progress.close()
+    def track(self, frame_bgr: np.ndarray) -> np.ndarray | None:
+        landmarks = self._tracker.track(frame_bgr)
+        if self._watch is not None:
+            self._watch(frame_bgr, landmarks)
+        return landmarks
 
 
 def _neutral_frame(source, base, wanted: int | None, seconds: float):

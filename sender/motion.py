@@ -8,6 +8,7 @@ basis (codec/motion_basis.py).
 """
 
 from collections.abc import Iterable
+from dataclasses import replace
 
 import numpy as np
 
@@ -29,8 +30,9 @@ def residuals(frames: Iterable[np.ndarray], tracker, face: BaseFace, fps: float,
     fit, over the k lower-face landmarks the paper's model moves, (k,) their indices), for the n
     frames with a face; ``neutral``: the rest frame's index (default: chosen as fd-send does);
     ``on_frame(count)`` after each frame (progress)."""
-    analyser = FaceAnalyser(tracker, face, fps, "paper", calibration_frames=round(fps), neutral=neutral,
-                            smoothing=Smoothing(0.0))
+    # the residuals need neither where the head is in a reference picture nor the frame's motion
+    analyser = FaceAnalyser(tracker, replace(face, picture=None), fps, "paper", calibration_frames=round(fps),
+                            neutral=neutral, smoothing=Smoothing(0.0))
     deformer = Deformer(face)
     lower = analyser.fit.lower
     out = []

@@ -8,12 +8,11 @@ Lucas-Kanade flow (starting from the last frame's motion, checked backwards),
 and a similarity is fitted to them with RANSAC: four numbers per frame
 (codec/picture.global_matrix), sent as GLOBAL_PARAMS.
 
-At enrolment, :func:`ring_weights` measures how far the picture around the
+At enrolment, :class:`RingWeights` measures how far the picture around the
 face (hair, neck, shoulders, the wall) follows the head, for the receiver's
 rings.
 """
 
-from collections.abc import Iterable
 
 import cv2
 import numpy as np
@@ -117,46 +116,54 @@ WEIGHT_PRIOR = 0.15
 SPREAD = 3
 
 
-def ring_weights(face: BaseFace, frames: Iterable[tuple[np.ndarray, np.ndarray | None]]) -> np.ndarray:
-    """(rings x boundary,) how far each ring vertex of the face's scene mesh (codec/picture.SceneMesh)
-    follows the head, measured on BGR ``frames`` with their tracked landmarks (pixels; None without a
-    face) of the picture's size: the least-squares factor between where the picture's content at the
-    vertex went (Lucas-Kanade flow from the picture, checked backwards) and where a vertex moving
-    fully with the head would go, in 0..1, averaged along the ring weighted by the head motion seen and
-    drawn toward the default fall-off where little was seen; the outermost ring stays put (0). Hair
-    that swings with the head comes out near 1, a wall behind it near 0."""
-    picture = face.picture
-    if picture is None:
-        raise ValueError("ring weights need a face with a reference picture")
-    scene = SceneMesh(face, picture)
-    reference = cv2.cvtColor(picture.image, cv2.COLOR_RGB2GRAY)
-    height, width = reference.shape
-    rest = scene.ring_pixels()
-    # a vertex past the picture's edge draws the edge (repeated): measure there
-    probe = np.clip(rest, 4, [width - 5, height - 5]).astype(np.float32)
-    stable = list(STABLE_LANDMARKS)
-    vertices = np.asarray(face.vertices, dtype=np.float64)
-    agree, seen = np.zeros(len(rest)), np.zeros(len(rest))
-    for frame, landmarks in frames:
+class RingWeights:
+    """How far each ring vertex of the face's scene mesh (codec/picture.SceneMesh) follows the head,
+    measured frame by frame (:meth:`add`, so one pass over the enrolment clip serves this and the
+    motion basis) and read by :meth:`weights`: for each vertex the least-squares factor between
+    where the picture's content at the vertex went (Lucas-Kanade flow from the picture, checked
+    backwards) and where a vertex moving fully with the head would go, in 0..1, averaged along the
+    ring weighted by the head motion seen and drawn toward the default fall-off where little was
+    seen; the outermost ring stays put (0). Hair that swings with the head comes out near 1, a wall
+    behind it near 0."""
+
+    def __init__(self, face: BaseFace) -> None:
+        picture = face.picture
+        if picture is None:
+            raise ValueError("ring weights need a face with a reference picture")
+        self._scene = SceneMesh(face, picture)
+        self._reference = cv2.cvtColor(picture.image, cv2.COLOR_RGB2GRAY)
+        height, width = self._reference.shape
+        self._rest = self._scene.ring_pixels()
+        # a vertex past the picture's edge draws the edge (repeated): measure there
+        self._probe = np.clip(self._rest, 4, [width - 5, height - 5]).astype(np.float32)
+        self._vertices = np.asarray(face.vertices, dtype=np.float64)
+        self._agree, self._seen = np.zeros(len(self._rest)), np.zeros(len(self._rest))
+
+    def add(self, frame: np.ndarray, landmarks: np.ndarray | None) -> None:
+        """One BGR ``frame`` of the picture's size and its tracked landmarks (pixels; None without a face)."""
         if landmarks is None:
-            continue
-        placement = fit_pose(image_to_face_axes(landmarks)[stable], vertices[stable]).placement()
-        head = scene.ring_pixels(placement) - rest
+            return
+        stable = list(STABLE_LANDMARKS)
+        placement = fit_pose(image_to_face_axes(landmarks)[stable], self._vertices[stable]).placement()
+        head = self._scene.ring_pixels(placement) - self._rest
         gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
-        start = probe[:, None].copy()
-        guess = (probe + 0.5 * head)[:, None].astype(np.float32)
-        found, ok = _flow(reference, gray, start, guess)
-        back, ok_back = _flow(gray, reference, found, start)
+        start = self._probe[:, None].copy()
+        guess = (self._probe + 0.5 * head)[:, None].astype(np.float32)
+        found, ok = _flow(self._reference, gray, start, guess)
+        back, ok_back = _flow(gray, self._reference, found, start)
         good = ok & ok_back & (np.linalg.norm((back - start)[:, 0], axis=1) < 2 * ROUND_TRIP)
-        agree += np.where(good, ((found - start)[:, 0] * head).sum(axis=1), 0.0)
-        seen += np.where(good, (head * head).sum(axis=1), 0.0)
-    count = len(scene.loop)
-    agree, seen = _around(agree.reshape(-1, count)), _around(seen.reshape(-1, count))
-    weight = np.clip(agree / np.maximum(seen, 1e-12), 0.0, 1.0)
-    confidence = seen / (seen + WEIGHT_PRIOR * scene.reference.scale ** 2)
-    out = confidence * weight + (1.0 - confidence) * scene.default_weights().reshape(-1, count)
-    out[-1] = 0.0
-    return out.ravel()
+        self._agree += np.where(good, ((found - start)[:, 0] * head).sum(axis=1), 0.0)
+        self._seen += np.where(good, (head * head).sum(axis=1), 0.0)
+
+    def weights(self) -> np.ndarray:
+        """(rings x boundary,) the weights of the frames added so far."""
+        scene, count = self._scene, len(self._scene.loop)
+        agree, seen = _around(self._agree.reshape(-1, count)), _around(self._seen.reshape(-1, count))
+        weight = np.clip(agree / np.maximum(seen, 1e-12), 0.0, 1.0)
+        confidence = seen / (seen + WEIGHT_PRIOR * scene.reference.scale ** 2)
+        out = confidence * weight + (1.0 - confidence) * scene.default_weights().reshape(-1, count)
+        out[-1] = 0.0
+        return out.ravel()
 
 
 def _around(values: np.ndarray) -> np.ndarray:

@@ -27,7 +27,7 @@ from codec.texture import texture_from_frame
 from common.errors import InputError
 from protocol.stream import Header, steps_for
 from receiver.face_view import FaceView, PictureView, default_look, open_view
-from sender.motion_global import GlobalMotion, ring_weights
+from sender.motion_global import GlobalMotion, RingWeights
 from sender.tracker import FaceTracker
 from tests.support import ROOT
 
@@ -420,9 +420,13 @@ def test_ring_weights_follow_what_moves_with_the_head():
                                    borderMode=cv2.BORDER_REFLECT) if moving else bgr
             yield frame, landmarks_of(face, placed)
 
-    rings = len(RINGS)
-    hair = ring_weights(face, frames(True)).reshape(rings, -1)
-    wall = ring_weights(face, frames(False)).reshape(rings, -1)
+    def weights(moving):
+        measured = RingWeights(face)
+        for frame, landmarks in frames(moving):
+            measured.add(frame, landmarks)
+        return measured.weights().reshape(len(RINGS), -1)
+
+    hair, wall = weights(True), weights(False)
     np.testing.assert_array_equal(hair[-1], 0.0)
     np.testing.assert_array_equal(wall[-1], 0.0)
     assert hair[:-1].mean() > 0.9 and wall[:-1].mean() < 0.1
