@@ -214,3 +214,8 @@ def frame_bytes(packets: list[bytes], sealed: bool = False) -> bytes:
     if sealed:
         return b"".join(bytes([SYNC]) + p for p in packets)
     return b"".join(packets)
+
+
+def stream_size(packets: list[bytes], sealed: bool = False) -> int:
+    """``len(frame_bytes(packets, sealed))``, without joining them."""
+    return sum(map(len, packets)) + (len(packets) if sealed else 0)

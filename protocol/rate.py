@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from protocol.encoder import PacketEncoder, frame_bytes
+from protocol.encoder import PacketEncoder, stream_size
 from protocol.header import Header
 from protocol.quantise import QUALITIES
 from protocol.secure import envelope_bytes
@@ -26,7 +26,7 @@ def sample_bits_per_second(header: Header, sample: Sequence[tuple[np.ndarray, bo
     packet also takes a sync byte)."""
     encoder = PacketEncoder(replace(header, model_size=0), frames_per_packet, dead_zone=dead_zone)
     packets = [p for params, seen in sample for p in encoder.frame(params, seen)] + encoder.end()[:-1]
-    size = len(frame_bytes(packets, sealed=bool(seal_bytes)))
+    size = stream_size(packets, sealed=bool(seal_bytes))
     if seal_bytes:
         size += sum(envelope_bytes(len(p), seal_bytes) for p in packets)
     return 8 * size * header.fps / len(sample)

@@ -7,7 +7,7 @@ specified in docs/bitstream.md.
 """
 
 from protocol.decoder import DatagramDecoder, PacketDecoder, StreamDecoder
-from protocol.encoder import Datagrams, PacketEncoder, StreamEncoder, frame_bytes
+from protocol.encoder import Datagrams, PacketEncoder, StreamEncoder, frame_bytes, stream_size
 from protocol.events import Damage, End, Frame, Model, Stats
 from protocol.header import VERSION, Header
 from protocol.quantise import DEFAULT_QUALITY, QUALITIES, steps_for
@@ -16,5 +16,5 @@ from protocol.rate import quality_for_bitrate
 __all__ = [
     "DEFAULT_QUALITY", "QUALITIES", "VERSION", "Damage", "DatagramDecoder", "Datagrams", "End", "Frame", "Header",
     "Model", "PacketDecoder", "PacketEncoder", "Stats", "StreamDecoder", "StreamEncoder", "frame_bytes",
-    "quality_for_bitrate", "steps_for",
+    "quality_for_bitrate", "steps_for", "stream_size",
 ]

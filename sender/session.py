@@ -24,6 +24,7 @@ from protocol.stream import (
     frame_bytes,
     quality_for_bitrate,
     steps_for,
+    stream_size,
 )
 from sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
 from sender.config import SendConfig
@@ -172,7 +173,7 @@ class SendSession:
                 header = self._seal(self.encoder.header())
                 if self.sealer is not None:
                     header.insert(0, self.sealer.preamble())
-                self.header_bytes = len(frame_bytes(header, self.sealed))
+                self.header_bytes = stream_size(header, self.sealed)
                 yield header
             self.frame_count += 1
             if self._dump_path is not None:
@@ -180,7 +181,7 @@ class SendSession:
                     self._dump = dump_writer(self._dump_path, len(self.header.names))
                 self._dump.add(**dump_row(result))
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
-            self.stream_bytes += len(frame_bytes(packets, self.sealed))
+            self.stream_bytes += stream_size(packets, self.sealed)
             if packets:
                 yield packets
         yield self.end()
@@ -191,7 +192,7 @@ class SendSession:
             return []
         self._ended = True
         packets = self._seal(self.encoder.end())
-        self.stream_bytes += len(frame_bytes(packets, self.sealed))
+        self.stream_bytes += stream_size(packets, self.sealed)
         return packets
 
     def _seal(self, packets: list[bytes]) -> list[bytes]:
