@@ -18,7 +18,7 @@ model points to its pixels (x right, y down) and depth; optionally their open
 mouth, ``mouth`` [bytes, width, height] after the picture, with ``mouth_points``
 the pixel positions in it of the mouth opening's vertices. Version 4 adds ``rings``
 in the JSON: how far each ring vertex around the face follows the head
-(codec/picture.SceneMesh, sender/motion_global.ring_weights), 0-255 for 0-1, and
+(codec/picture.SceneMesh, sender/motion_global.RingWeights), 0-255 for 0-1, and
 takes fewer bytes: ``meta`` may be "base" (the generic face's, codec/data), the
 motion basis's patterns are <f2, and a file with a reference picture may leave the
 texture out (the face is then textured by the picture where the projection puts
