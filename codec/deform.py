@@ -65,6 +65,21 @@ def rotation_matrix(axis: np.ndarray, theta_deg: float) -> np.ndarray:
     return np.eye(3) + np.sin(t) * k + (1.0 - np.cos(t)) * (k @ k)
 
 
+def rotation_from_vector(rvec_deg: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation of a (3,) rotation vector in degrees (axis times angle), as the stream sends the head's."""
+    rvec = np.asarray(rvec_deg, dtype=np.float64)
+    angle = float(np.linalg.norm(rvec))
+    return rotation_matrix(rvec / angle, angle) if angle > 0 else np.eye(3)
+
+
+def rotation_vector(rotation: np.ndarray) -> np.ndarray:
+    """(3,) rotation vector in degrees of a (3, 3) rotation: :func:`rotation_from_vector` inverted."""
+    import cv2
+
+    rvec, _ = cv2.Rodrigues(np.ascontiguousarray(rotation))
+    return np.degrees(rvec.ravel())
+
+
 class Deformer:
     """Deforms one base face by a rule of codec.regions.RULES ("paper": equations (1) and (2)
     exactly; "refined", the default: the project's mouth slit and rounded lower lip); build once,
@@ -168,9 +183,7 @@ class Deformer:
     @staticmethod
     def _pose(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(3, 3) head rotation (rotation vector rx, ry, rz in degrees) and (3,) translation."""
-        rvec, shift = p[_ROT], p[_SHIFT]
-        angle = float(np.linalg.norm(rvec))
-        return (rotation_matrix(rvec / angle, angle) if angle > 0 else np.eye(3)), shift
+        return rotation_from_vector(p[_ROT]), p[_SHIFT]
 
 
 def _preset(theta: float, v2=(0, 0, 0), v3=(0, 0, 0), v8=(0, 0, 0), v9=(0, 0, 0)) -> np.ndarray:

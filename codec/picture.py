@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from codec.deform import HEAD_DEPTH, rotation_matrix
+from codec.deform import HEAD_DEPTH, rotation_from_vector, rotation_vector
 from codec.face_model import BaseFace, ReferencePicture, mouth_vertices
 
 #: How far the receiver's camera is from the face (base-face units), to turn scale changes into
@@ -83,19 +83,16 @@ def relative_pose(reference: Placement, frame: Placement, pivot: np.ndarray) -> 
     """(6,) rx, ry, rz, tx, ty, tz of ``frame`` relative to ``reference``: the rotation vector
     (degrees) of frame.rotation @ reference.rotation.T, the image-plane shift of ``pivot`` in face
     heights of the reference, and tz = VIEW_DISTANCE * (1 - reference.scale / frame.scale)."""
-    rvec, _ = cv2.Rodrigues(np.ascontiguousarray(frame.rotation @ reference.rotation.T))
     shift = (frame.apply(pivot[None])[0] - reference.apply(pivot[None])[0]) / reference.scale
     depth = VIEW_DISTANCE * (1.0 - reference.scale / frame.scale)
-    return np.concatenate([np.degrees(rvec.ravel()), shift[:2], [depth]])
+    return np.concatenate([rotation_vector(frame.rotation @ reference.rotation.T), shift[:2], [depth]])
 
 
 def frame_placement(reference: Placement, pose: np.ndarray, pivot: np.ndarray) -> Placement:
     """The placement that :func:`relative_pose` measured as ``pose`` (6,); its inverse up to the
     pivot's depth, which an orthographic picture does not show."""
-    rx, ry, rz, tx, ty, tz = np.asarray(pose, dtype=np.float64)
-    rvec = np.array([rx, ry, rz])
-    angle = float(np.linalg.norm(rvec))
-    turn = rotation_matrix(rvec / angle, angle) if angle > 0 else np.eye(3)
+    pose = np.asarray(pose, dtype=np.float64)
+    turn, (tx, ty, tz) = rotation_from_vector(pose[:3]), pose[3:]
     scale = reference.scale / max(1.0 - tz / VIEW_DISTANCE, 0.05)
     rotation = turn @ reference.rotation
     at = reference.apply(pivot[None])[0] + reference.scale * np.array([tx, ty, 0.0])

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from codec.deform import rotation_vector
 from codec.picture import Placement
 
 #: Landmarks that barely move with expression: forehead, nose bridge and tip, eye
@@ -34,10 +35,7 @@ class Pose:
 
     def head_rotation_vector(self) -> np.ndarray:
         """(3,) head rotation as seen by the camera: axis times angle, in degrees."""
-        import cv2
-
-        rvec, _ = cv2.Rodrigues(np.ascontiguousarray(self.rotation.T))
-        return np.degrees(rvec.ravel())
+        return rotation_vector(self.rotation.T)
 
     def placement(self, factor: float = 1.0) -> Placement:
         """The inverse map, base face to the frame's face axes (codec/picture.py's picture axes), in a
