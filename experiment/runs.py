@@ -8,7 +8,6 @@ are those of its elementary stream file. Both files stay in the work folder.
 import subprocess
 import sys
 import time
-from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -57,12 +56,6 @@ def enroll(clip: Clip, work: Path) -> Path:
     return path
 
 
-@cache
-def picture_look() -> bool:
-    """Whether fd-recv draws the whole picture (--look picture); older receivers draw the face alone."""
-    return "--look" in _tool("receiver.cli", "--help").decode()
-
-
 def ours_name(layout: str, own_face: bool, every: int = 1) -> str:
     """The codec column of our runs: ours-<layout>[-own][-every<N>]."""
     return f"ours-{layout}" + ("-own" if own_face else "") + (f"-every{every}" if every > 1 else "")
@@ -92,7 +85,7 @@ def run_ours(clip: Clip, quality: int, layout: str, work: Path, own_face: bool =
     header = 1 + header_size
     n = len(clip.frames)
     row = {"clip": clip.name, "size": size, "codec": name, "setting": f"q{quality}",
-           "look": "picture" if own_face and picture_look() else "face",
+           "look": "picture" if own_face else "shaded",
            "frames": n, "fps": clip.fps, "stream_bytes": len(data) - header,
            "oneoff_bytes": header + (Path(face[1]).stat().st_size if own_face else 0),
            "encode_fps": n / encode_s, "decode_fps": n / decode_s}
@@ -100,9 +93,9 @@ def run_ours(clip: Clip, quality: int, layout: str, work: Path, own_face: bool =
 
 
 def receive(stream: Path, size: int, face: list) -> list:
-    """fd-recv's frames of a stream file at ``size`` x ``size``: the whole picture when the receiver
-    draws it and the speaker's model (``face``: [] or [path]) holds the picture."""
-    look = ["--look", "picture"] if face and picture_look() else []
+    """fd-recv's frames of a stream file at ``size`` x ``size``: the whole picture with the speaker's
+    model (``face``: [path]), the shaded generic face without one ([])."""
+    look = ["--look", "picture"] if face else []
     return read_y4m(_tool("receiver.cli", str(stream), "-o", "-", "--size", str(size), "-q",
                           *(["--face", *face] if face else []), *look))
 
