@@ -49,7 +49,8 @@ MAX_SEEK = 1 << 16  # bytes searched for a header before the input is declared f
 
 
 class PacketDecoder:
-    """Whole packets in, events out: the decoder for datagram transports.
+    """Whole packets in, events out: the core that the datagram, byte-stream and sealed decoders
+    feed (:class:`DatagramDecoder`, :class:`StreamDecoder`, ``protocol.secure_stream``).
 
     A datagram holds one packet as on a byte stream (:meth:`accept_wire`): a
     sync byte before each packet but a delta; a delta's datagram may carry the
@@ -88,12 +89,6 @@ class PacketDecoder:
         :data:`~protocol.framing.MAX_COUNT` per byte :meth:`unpaid` (the frames between were in
         packets of at most that many frames and at least a byte)."""
         return MAX_COUNT * self.unpaid(size)
-
-    def receive(self, data: bytes) -> list:
-        """Events of one datagram; a bad one is dropped and reported."""
-        events = self.packet(data)
-        self.position += len(data)
-        return events
 
     def packet(self, data: bytes) -> list:
         """Events of one datagram's packets (:meth:`packets`) that start at :attr:`position`; a bad
