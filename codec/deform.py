@@ -14,6 +14,17 @@ cheeks; gaze is for the renderer), the richer mouth and jaw (codec/mouth.py),
 the person's own motion basis when their face model has one
 (codec/motion_basis.py) and then a rigid head pose, with the parameters of
 EXTENDED_PARAMS.
+
+The refined rule (codec/regions.py) also guards against folds. A linear blend
+turns skin inside out once a vector carries a point past its neighbours (a
+lower lip sent down into the chin, which F4 only the jaw moves); the paper's
+rule draws that as sent. The refined rule draws instead anchor + s (sent -
+anchor) with the largest s (bisection) that leaves every skin triangle below
+the upper face facing its own way (codec/folds.py), the anchor being the first
+of these that folds nothing: the sent face with its lower lip where the jaw
+carries it; the jaw alone; the face at rest below the eyes. Brows, lids and
+cheeks are drawn as sent. It changes no face that does not fold. The sender fits
+around it (sender/fit.py), so that it rarely acts on what fd-send sends.
 """
 
 from __future__ import annotations
@@ -21,8 +32,9 @@ from __future__ import annotations
 import numpy as np
 
 from codec.face_model import BaseFace
+from codec.folds import Facing
 from codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS
-from codec.mouth import MOUTH_PARAMS, MouthModel, build_mouth
+from codec.mouth import LOWER_SIDE, MOUTH_PARAMS, MouthModel, build_mouth
 from codec.regions import DEFAULT_RULE, FEATURE_NAMES, RegionMap, build_region_map, feature_positions
 from codec.upper_face import GAZE_PARAMS, UPPER_PARAMS, EyeModel, UpperFace, build_upper_face
 
@@ -39,6 +51,11 @@ GLOBAL_PARAMS = ("gx", "gy", "gs", "gr")
 #: Newer names come last so that the older layouts keep their slots.
 EXTENDED_PARAMS: tuple[str, ...] = (PAPER_PARAMS + UPPER_PARAMS + GAZE_PARAMS + POSE_PARAMS + MOUTH_PARAMS
                                     + BASIS_PARAMS + GLOBAL_PARAMS)
+#: The refined rule's fold guard (module docstring) keeps this part of every skin triangle's rest area
+#: facing its own way, so that none is drawn edge-on either; the mouth's and eyes' fills may close.
+KEEP_FACING = 0.05
+#: Bisection steps of the guard: what it keeps of the motion is within 2^-12 of the most that folds nothing.
+FOLD_STEPS = 12
 HEAD_DEPTH = 0.6  # the head turns about a point this far behind the face's bounding-box centre
 _UPPER = slice(len(PAPER_PARAMS), len(PAPER_PARAMS) + len(UPPER_PARAMS))
 _GAZE = slice(_UPPER.stop, _UPPER.stop + len(GAZE_PARAMS))
@@ -46,6 +63,8 @@ _ROT = slice(_GAZE.stop, _GAZE.stop + 3)
 _SHIFT = slice(_ROT.stop, _ROT.stop + 3)
 _MOUTH = slice(_SHIFT.stop, _SHIFT.stop + len(MOUTH_PARAMS))
 _BASIS = slice(_MOUTH.stop, _MOUTH.stop + MAX_COMPONENTS)
+#: The slots that shape the lower face, which the fold guard scales: the paper's, the mouth's, the motion basis.
+_LOWER = np.r_[0 : len(PAPER_PARAMS), _MOUTH.start : _BASIS.stop]
 
 
 def extended_params(names, params: np.ndarray) -> np.ndarray:
@@ -82,8 +101,8 @@ def rotation_vector(rotation: np.ndarray) -> np.ndarray:
 
 class Deformer:
     """Deforms one base face by a rule of codec.regions.RULES ("paper": equations (1) and (2)
-    exactly; "refined", the default: the project's mouth slit and rounded lower lip); build once,
-    call deform() per frame. InputError for an unknown rule."""
+    exactly; "refined", the default: the project's mouth slit, rounded lower lip and fold guard);
+    build once, call deform() per frame. InputError for an unknown rule."""
 
     def __init__(self, face: BaseFace, rule: str = DEFAULT_RULE) -> None:
         self.face = face
@@ -112,6 +131,11 @@ class Deformer:
         n = len(self._base)
         self._motion = face.motion.matrix(n) if face.motion is not None else np.zeros((3 * n, MAX_COMPONENTS))
         self._pivot = 0.5 * (self._base.min(axis=0) + self._base.max(axis=0)) - [0.0, 0.0, HEAD_DEPTH]
+        lower = ~(self.upper.region >= 0)[face.faces].any(axis=1)  # the upper face's own blink folds stay its own
+        fills = face.mouth_faces | face.eye_faces
+        self._facing = Facing(self._base, face.faces[lower], fills[lower]) if rule == "refined" else None
+        self._lower_lip = [_MOUTH.start + MOUTH_PARAMS.index(f"{point}_{axis}")
+                           for point in LOWER_SIDE[1:] for axis in "xyz"]
 
     @property
     def hinge_axis(self) -> tuple[np.ndarray, np.ndarray]:
@@ -148,20 +172,66 @@ class Deformer:
 
         f3_with_jaw: F3 rotates with the jaw (paper Fig. 7) and v3x..v3z are ignored.
         """
-        vec, rot = self.feature_vectors(params, f3_with_jaw)
-        out = self._base + self._w @ vec
-        out[self._jaw_idx] = self._jaw_rel @ rot.T + self._origin
-        return out
+        p = np.asarray(params, dtype=np.float64)
+        if p.shape != (len(PAPER_PARAMS),):
+            raise ValueError(f"params must have shape ({len(PAPER_PARAMS)},), got {p.shape}")
+        return self._unfolded(np.r_[p, np.zeros(len(EXTENDED_PARAMS) - len(PAPER_PARAMS))], f3_with_jaw)
 
     def deform_extended(self, params: np.ndarray, f3_with_jaw: bool = False) -> np.ndarray:
         """(468, 3) float64 vertices from params (len(EXTENDED_PARAMS),): the paper's deformation,
         plus the upper face, the mouth and the motion basis (precomputed linear terms), then the head
         pose. Gaze moves no vertex; basis coefficients past the face's own patterns move none either."""
         p = self._extended(params)
-        out = self.deform(p[: len(PAPER_PARAMS)], f3_with_jaw)
-        out += (self.upper.basis @ p[_UPPER] + self.mouth.basis @ p[_MOUTH] + self._motion @ p[_BASIS]).reshape(-1, 3)
         rot, shift = self._pose(p)
-        return (out - self._pivot) @ rot.T + self._pivot + shift
+        return (self._unfolded(p, f3_with_jaw) - self._pivot) @ rot.T + self._pivot + shift
+
+    def _unfolded(self, p: np.ndarray, f3_with_jaw: bool) -> np.ndarray:
+        out = self.blend(p, f3_with_jaw)
+        if self._facing is not None and self._folds(out):
+            out = self.blend(self.unfold(p, f3_with_jaw), f3_with_jaw)
+        return out
+
+    def unfold(self, params: np.ndarray, f3_with_jaw: bool = False) -> np.ndarray:
+        """(len(EXTENDED_PARAMS),) the parameters the rule draws for params: themselves, unless the
+        refined rule's fold guard (module docstring) scales them back."""
+        p = self._extended(params)
+        if self._facing is None or not self._folds(self.blend(p, f3_with_jaw)):
+            return p
+        carry = self.feature_vectors(np.r_[p[0], np.zeros(12)], True)[0][self._col["F3"]]
+        lip = p.copy()  # the lower lip where the jaw carries it, the rest as sent
+        lip[4:7] = carry
+        lip[self._lower_lip] = 0.0
+        jaw = p.copy()  # the jaw alone
+        jaw[_LOWER] = 0.0
+        jaw[0], jaw[4:7] = p[0], carry
+        rest = p.copy()
+        rest[_LOWER] = 0.0
+        anchor = next((a for a in (lip, jaw) if not self._folds(self.blend(a, f3_with_jaw))), rest)
+        lo, hi = 0.0, 1.0
+        for _ in range(FOLD_STEPS):
+            mid = 0.5 * (lo + hi)
+            if self._folds(self.blend(anchor + mid * (p - anchor), f3_with_jaw)):
+                hi = mid
+            else:
+                lo = mid
+        return anchor + lo * (p - anchor)
+
+    def would_fold(self, params: np.ndarray, f3_with_jaw: bool = False) -> bool:
+        """Whether the refined rule's fold guard acts on params (len(EXTENDED_PARAMS),): the sender
+        fits again rather than let it (sender/fit.py). Never under the paper's rule, which draws folds."""
+        return self._facing is not None and self._folds(self.blend(self._extended(params), f3_with_jaw))
+
+    def blend(self, p: np.ndarray, f3_with_jaw: bool = False) -> np.ndarray:
+        """(468, 3) vertices from params (len(EXTENDED_PARAMS),) before the fold guard and the head pose:
+        equations (1) and (2) with the rule's weights, the jaw band rotated, plus the linear terms."""
+        vec, rot = self.feature_vectors(p[: len(PAPER_PARAMS)], f3_with_jaw)
+        out = self._base + self._w @ vec
+        out[self._jaw_idx] = self._jaw_rel @ rot.T + self._origin
+        out += (self.upper.basis @ p[_UPPER] + self.mouth.basis @ p[_MOUTH] + self._motion @ p[_BASIS]).reshape(-1, 3)
+        return out
+
+    def _folds(self, vertices: np.ndarray) -> bool:
+        return bool(self._facing.folded(vertices, KEEP_FACING).any())
 
     def iris(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(2, 3) iris centres and (2, 3) unit gaze directions (rows: face-left, face-right eye)

@@ -1,5 +1,6 @@
 """Draw docs/regions.png (the region map), docs/presets.png (the paper's examples, by the paper's
-rule) and docs/lip_rules.png (F3's weight and an opening jaw under each rule).
+rule) and docs/lip_rules.png (F3's weight, an opening jaw and a lip pressed into the chin under each
+rule).
 
 Orthographic views with cv2 line/polygon drawing only; run from anywhere:
     .venv/bin/python docs/make_regions_figure.py
@@ -15,6 +16,7 @@ import numpy as np
 
 from codec.deform import PRESETS, Deformer
 from codec.face_model import load_base_face
+from codec.folds import Facing
 from codec.regions import FEATURE_NAMES
 
 OUT = Path(__file__).resolve().parent
@@ -108,39 +110,54 @@ def draw_presets(size: int = 360) -> np.ndarray:
     return np.hstack(cols)
 
 
-def lip_panel(vertices: np.ndarray, face, colour: np.ndarray, size: int) -> np.ndarray:
-    """Front close-up of the lower face: triangles filled by ``colour`` (m, 3) BGR, back to front."""
+def lip_panel(vertices: np.ndarray, face, colour: np.ndarray, size: int, centre: float = -0.25,
+              on_top: np.ndarray | None = None) -> np.ndarray:
+    """Front close-up of the lower face about height ``centre``: triangles filled by ``colour`` (m, 3)
+    BGR, back to front, those marked ``on_top`` last (folded skin hides under the rest)."""
     img = np.full((size, size, 3), 255, np.uint8)
-    xy = (vertices[:, :2] - [0.0, -0.25]) * 2.6  # the mouth and chin fill the panel
+    xy = (vertices[:, :2] - [0.0, centre]) * 2.6  # the mouth and chin fill the panel
     px = to_pixels(xy, size, margin=0.0)
-    for f in np.argsort(vertices[face.faces].mean(axis=1)[:, 2]):
+    depth = vertices[face.faces].mean(axis=1)[:, 2] + (0.0 if on_top is None else 10.0 * on_top)
+    for f in np.argsort(depth):
         cv2.fillConvexPoly(img, px[face.faces[f]], tuple(int(c) for c in colour[f]), cv2.LINE_AA)
         cv2.polylines(img, [px[face.faces[f]]], True, GREY, 1, cv2.LINE_AA)
     return img
 
 
+#: A frame of liveportrait_d12 as fd-send fitted it (paper set) before it fitted around folds: the jaw
+#: at 10.9 degrees, the lower lip 0.19 below where the jaw carries it, 0.03 above the chin.
+PRESSED_LIP = np.array([10.872, 0.001, 0.001, 0.013, -0.0, -0.265, -0.095, 0.011, -0.093, -0.037, -0.006, -0.098,
+                        -0.039])
+
+
 def draw_lip_rules(size: int = 420, theta: float = 25.0) -> np.ndarray:
-    """Per rule (rows): F3's blend weight on the lower face (white 0 to blue 1), and the jaw
-    opened by theta with F3 following it, mouth fill dark, flipped triangles red."""
+    """Per rule (top rows): F3's blend weight on the lower face (white 0 to blue 1), and the jaw
+    opened by theta with F3 following it; bottom row, a lower lip sent into the chin under each rule.
+    Mouth fill dark, flipped triangles red."""
     face = load_base_face()
     f3 = FEATURE_NAMES.index("F3")
-    rows = []
+    facing = Facing(face.vertices, face.faces)
+
+    def shaded(vertices: np.ndarray, text: str, centre: float = -0.25) -> np.ndarray:
+        flipped = facing.folded(vertices)
+        shade = np.where(face.mouth_faces[:, None], 60, 235) * np.ones((1, 3))
+        shade[flipped] = JAW_COLOUR
+        return label(lip_panel(vertices, face, shade, size, centre, flipped), f"{text}, {flipped.sum()} flipped")
+
+    rows, pressed = [], []
     for rule in ("paper", "refined"):
         d = Deformer(face, rule)
         w = d.regions.weights[face.faces, f3].mean(axis=1)
         weight = np.stack([255 - 55 * w, 255 - 200 * w, 255 - 200 * w], axis=1)  # BGR
-        base, out = face.vertices, d.deform(np.r_[theta, np.zeros(12)], True)
-        normals = [np.cross(v[face.faces[:, 1]] - v[face.faces[:, 0]], v[face.faces[:, 2]] - v[face.faces[:, 0]])
-                   for v in (base, out)]
-        flipped = np.sum(normals[0] * normals[1], axis=1) <= 0
-        shade = np.where(face.mouth_faces[:, None], 60, 235) * np.ones((1, 3))
-        shade[flipped] = JAW_COLOUR
-        panels = [lip_panel(base, face, weight, size), lip_panel(out, face, shade, size)]
-        cv2.putText(panels[0], f"{rule}: weight of F3", (10, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.7, BLACK, 2, cv2.LINE_AA)
-        cv2.putText(panels[1], f"{rule}: jaw {theta:g} deg, {flipped.sum()} flipped", (10, 28),
-                    cv2.FONT_HERSHEY_SIMPLEX, 0.7, BLACK, 2, cv2.LINE_AA)
-        rows.append(np.hstack(panels))
-    return np.vstack(rows)
+        rows.append(np.hstack([label(lip_panel(face.vertices, face, weight, size), f"{rule}: weight of F3"),
+                               shaded(d.deform(np.r_[theta, np.zeros(12)], True), f"{rule}: jaw {theta:g} deg")]))
+        pressed.append(shaded(d.deform(PRESSED_LIP), f"{rule}: lip pressed", -0.36))
+    return np.vstack(rows + [np.hstack(pressed)])
+
+
+def label(img: np.ndarray, text: str) -> np.ndarray:
+    cv2.putText(img, text, (10, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.7, BLACK, 2, cv2.LINE_AA)
+    return img
 
 
 def main() -> None:

@@ -20,8 +20,8 @@ trigonometric polynomial whose coefficients are two dot products per frame.
 
 import numpy as np
 
-from codec.deform import FREE, JAW_FOLLOWING, Deformer
-from codec.mouth import MOUTH_PARAMS
+from codec.deform import EXTENDED_PARAMS, FREE, JAW_FOLLOWING, PAPER_PARAMS, Deformer, extended_params
+from codec.mouth import LOWER_SIDE, MOUTH_PARAMS
 from codec.regions import FEATURE_NAMES
 from codec.upper_face import UPPER_PARAMS
 
@@ -30,6 +30,9 @@ THETA_RANGE = (-15.0, 45.0)  # degrees: a little closing past rest, a wide yawn
 #: observed components near rest instead of chasing tracker noise.
 RIDGE = 1e-3
 _GRID = np.radians(np.linspace(*THETA_RANGE, 61))
+#: Weights, relative to the lower lip's own normal-equation diagonal, with which the fit of a face that
+#: would fold tries holding the lower lip toward the jaw's carry (ModelFit.paper).
+LIP_HOLD = (0.0625, 0.25, 1.0, 4.0, 16.0, 64.0)
 
 
 def _cross_matrix(axis: np.ndarray) -> np.ndarray:
@@ -41,6 +44,39 @@ def _ridge_solver(b: np.ndarray, ridge: float) -> np.ndarray:
     """(p, m) matrix taking (m,) observations to the (p,) ridge least-squares solution of b (m, p)."""
     gram = b.T @ b
     return np.linalg.solve(gram + ridge * np.diag(np.diag(gram)), b.T)
+
+
+class _ThetaSolver:
+    """The least-squares fit of theta and the vector components v to observations d = s c1 + c c2 +
+    B v (s = sin theta, c = 1 - cos theta), v eliminated (module docstring)."""
+
+    def __init__(self, b: np.ndarray, c1: np.ndarray, c2: np.ndarray, ridge: float) -> None:
+        self._solve = _ridge_solver(b, ridge)  # (p, m)
+        # min_v |u - B v|^2 + ridge |v|^2 = u^T M u with M = I - B (B^T B + ridge I)^-1 B^T
+        mc1 = c1 - b @ (self._solve @ c1)
+        mc2 = c2 - b @ (self._solve @ c2)
+        self._mc = np.stack([mc1, mc2])  # (2, m)
+        self._k = np.array([[c1 @ mc1, c1 @ mc2], [c2 @ mc1, c2 @ mc2]])
+        self._c1, self._c2 = c1, c2
+
+    def fit(self, d: np.ndarray) -> np.ndarray:
+        """(m,) observations -> (1 + p,) theta in degrees and v."""
+        a = self._mc @ d  # (2,)
+        s, c = np.sin(_GRID), 1.0 - np.cos(_GRID)
+        k = self._k
+        cost = -2 * (s * a[0] + c * a[1]) + s * s * k[0, 0] + 2 * s * c * k[0, 1] + c * c * k[1, 1]
+        t = _GRID[np.argmin(cost)]
+        lo, hi = np.radians(THETA_RANGE)
+        for _ in range(3):  # Newton on the exact cost; the grid start is within half a step
+            s, c, ds, dc = np.sin(t), 1.0 - np.cos(t), np.cos(t), np.sin(t)
+            g = 2 * (-(ds * a[0] + dc * a[1]) + s * ds * k[0, 0] + (ds * c + s * dc) * k[0, 1] + c * dc * k[1, 1])
+            h = 2 * ((s * a[0] - ds * a[1]) + (ds * ds - s * s) * k[0, 0]
+                     + (2 * ds * dc + s * ds - c * s) * k[0, 1] + (dc * dc + c * ds) * k[1, 1])
+            if h <= 0:
+                break
+            t = float(np.clip(t - g / h, lo, hi))
+        v = self._solve @ (d - np.sin(t) * self._c1 - (1.0 - np.cos(t)) * self._c2)
+        return np.concatenate([[np.degrees(t)], v])
 
 
 class ModelFit:
@@ -75,13 +111,21 @@ class ModelFit:
         if mouth:
             rows = deformer.mouth.basis.reshape(len(base), 3, -1)[self.lower].reshape(-1, len(MOUTH_PARAMS))
             b = np.hstack([b, rows])  # (3k, 12 + len(MOUTH_PARAMS))
-        self._solve = _ridge_solver(b, ridge)  # (12, 3k)
-        # min_v |u - B v|^2 + ridge |v|^2 = u^T M u with M = I - B (B^T B + ridge I)^-1 B^T
-        mc1 = self._c1 - b @ (self._solve @ self._c1)
-        mc2 = self._c2 - b @ (self._solve @ self._c2)
-        self._mc = np.stack([mc1, mc2])  # (2, 3k)
-        self._k = np.array([[self._c1 @ mc1, self._c1 @ mc2], [self._c2 @ mc1, self._c2 @ mc2]])
         self._b = b
+        self._ridge = ridge
+        self._theta = _ThetaSolver(b, self._c1, self._c2, ridge)
+        # the lower lip's offset from where the jaw carries F3 (and the mouth's lower points): the
+        # penalty rows of the refits that keep a face from folding
+        f3 = FREE.index("F3")
+        self._lip_columns = [3 * f3 + i for i in range(3)] + ([12 + MOUTH_PARAMS.index(f"{n}_{a}")
+                                                              for n in LOWER_SIDE[1:] for a in "xyz"] if mouth else [])
+        f3rel = fpos[col["F3"]] - origin
+        self._lip_c1 = np.r_[k1 @ f3rel, np.zeros(len(self._lip_columns) - 3)]
+        self._lip_c2 = np.r_[k2 @ f3rel, np.zeros(len(self._lip_columns) - 3)]
+        self._lip_scale = float(np.mean(np.diag(b.T @ b)[self._lip_columns]))
+        self._refits: dict[float, _ThetaSolver] = {}
+        self._names = PAPER_PARAMS + (MOUTH_PARAMS if mouth else ())
+        self._slots = [EXTENDED_PARAMS.index(n) for n in self._names]
 
         up = deformer.upper
         self.upper_landmarks = np.flatnonzero(np.abs(up.weights).sum(axis=1) > 1e-9)
@@ -98,24 +142,37 @@ class ModelFit:
 
     def paper(self, target: np.ndarray) -> np.ndarray:
         """(468, 3) target -> (13,) parameters in PAPER_PARAMS order (theta in degrees),
-        followed with ``mouth`` by the (len(MOUTH_PARAMS),) mouth parameters."""
+        followed with ``mouth`` by the (len(MOUTH_PARAMS),) mouth parameters.
+
+        Where the best fit would fold the face under the refined rule (a lower lip sent down into
+        the chin), the receiver would draw it scaled back (Deformer.unfold). The fit then also tries
+        holding the lower lip toward where the jaw carries it, ever more firmly (theta and the other
+        points take up what they can of the lip's motion), and sends the closest of these that folds
+        nothing."""
         d = np.asarray(target, dtype=np.float64)[self.lower].ravel() - self._c0
-        a = self._mc @ d  # (2,)
-        s, c = np.sin(_GRID), 1.0 - np.cos(_GRID)
-        k = self._k
-        cost = -2 * (s * a[0] + c * a[1]) + s * s * k[0, 0] + 2 * s * c * k[0, 1] + c * c * k[1, 1]
-        t = _GRID[np.argmin(cost)]
-        lo, hi = np.radians(THETA_RANGE)
-        for _ in range(3):  # Newton on the exact cost; the grid start is within half a step
-            s, c, ds, dc = np.sin(t), 1.0 - np.cos(t), np.cos(t), np.sin(t)
-            g = 2 * (-(ds * a[0] + dc * a[1]) + s * ds * k[0, 0] + (ds * c + s * dc) * k[0, 1] + c * dc * k[1, 1])
-            h = 2 * ((s * a[0] - ds * a[1]) + (ds * ds - s * s) * k[0, 0]
-                     + (2 * ds * dc + s * ds - c * s) * k[0, 1] + (dc * dc + c * ds) * k[1, 1])
-            if h <= 0:
-                break
-            t = float(np.clip(t - g / h, lo, hi))
-        v = self._solve @ (d - np.sin(t) * self._c1 - (1.0 - np.cos(t)) * self._c2)
-        return np.concatenate([[np.degrees(t)], v])
+        params = self._theta.fit(d)
+        if not self._deformer.would_fold(self._extended(params)):
+            return params
+        candidates = [self._deformer.unfold(self._extended(params))[self._slots]]
+        for weight in LIP_HOLD:
+            held = self._held(weight).fit(np.r_[d, np.zeros(len(self._lip_columns))])
+            if not self._deformer.would_fold(self._extended(held)):
+                candidates.append(held)
+        return min(candidates, key=lambda p: float(np.sum((d - (self.lower_mesh(p).ravel() - self._c0)) ** 2)))
+
+    def _extended(self, params: np.ndarray) -> np.ndarray:
+        return extended_params(self._names, params)
+
+    def _held(self, weight: float) -> _ThetaSolver:
+        """The fit with penalty rows sqrt(weight) (carry(theta) - v) on the lower lip (cached)."""
+        if weight not in self._refits:
+            rows = np.zeros((len(self._lip_columns), self._b.shape[1]))
+            rows[np.arange(len(rows)), self._lip_columns] = 1.0
+            root = np.sqrt(weight * self._lip_scale)
+            self._refits[weight] = _ThetaSolver(np.vstack([self._b, root * rows]),
+                                                np.r_[self._c1, -root * self._lip_c1],
+                                                np.r_[self._c2, -root * self._lip_c2], self._ridge)
+        return self._refits[weight]
 
     def upper(self, target: np.ndarray) -> np.ndarray:
         """(468, 3) target -> (len(UPPER_PARAMS),) brow, lid and cheek parameters."""

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
+from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer, extended_params
 from codec.face_model import load_base_face
 from codec.mouth import MOUTH_PARAMS
 from codec.upper_face import UPPER_PARAMS
@@ -11,6 +11,9 @@ from sender.fidelity import fidelity
 from sender.fit import ModelFit
 
 UPPER = slice(len(PAPER_PARAMS), len(PAPER_PARAMS) + len(UPPER_PARAMS))
+MOUTH = [EXTENDED_PARAMS.index(n) for n in MOUTH_PARAMS]
+#: About the largest brow, lid and cheek values fd-send --params full produced on the dev clips.
+UPPER_SPAN = np.array([0.03, 0.03, 0.03, 0.03, 0.5, 0.5, 0.03, 0.03])
 
 
 @pytest.fixture(scope="module")
@@ -19,13 +22,21 @@ def model():
     return deformer, ModelFit(deformer, ridge=0.0)
 
 
-def random_faces(n: int, seed: int = 1) -> np.ndarray:
+def random_faces(n: int, seed: int = 1, mouth: float = 0.0) -> np.ndarray:
+    """(n, len(EXTENDED_PARAMS)) parameters of faces the refined rule draws as sent (none that its fold
+    guard would change), with the mouth's extra points ``mouth`` apart (standard deviation)."""
     rng = np.random.default_rng(seed)
-    p = np.zeros((n, len(EXTENDED_PARAMS)))
-    p[:, 0] = rng.uniform(-10.0, 40.0, n)
-    p[:, 1:13] = rng.normal(0.0, 0.03, (n, 12))
-    p[:, UPPER] = rng.uniform(-0.5, 1.0, (n, len(UPPER_PARAMS)))
-    return p
+    deformer = Deformer(load_base_face())
+    faces = []
+    while len(faces) < n:
+        p = np.zeros(len(EXTENDED_PARAMS))
+        p[0] = rng.uniform(-10.0, 40.0)
+        p[1:13] = rng.normal(0.0, 0.03, 12)
+        p[UPPER] = rng.uniform(-1.0, 1.0, len(UPPER_PARAMS)) * UPPER_SPAN
+        p[MOUTH] = rng.normal(0.0, mouth, len(MOUTH))
+        if not deformer.would_fold(p):
+            faces.append(p)
+    return np.array(faces)
 
 
 def test_fit_recovers_model_generated_parameters(model):
@@ -36,11 +47,16 @@ def test_fit_recovers_model_generated_parameters(model):
         np.testing.assert_allclose(fit.upper(target), p[UPPER], atol=1e-6)
 
 
-def test_theta_stays_in_range(model):
-    deformer, fit = model
+def test_theta_stays_in_range():
+    """Under the paper's rule, which draws a jaw opened past 33 degrees folded, the fit stops at 45;
+    under the refined rule it sends the widest opening that folds nothing."""
     p = np.zeros(len(EXTENDED_PARAMS))
     p[0] = 80.0
-    assert fit.paper(deformer.deform_extended(p))[0] == pytest.approx(45.0)
+    paper = Deformer(load_base_face(), "paper")
+    assert ModelFit(paper).paper(paper.blend(p))[0] == pytest.approx(45.0)
+    refined = Deformer(load_base_face())
+    theta = ModelFit(refined).paper(refined.blend(p))[0]
+    assert 30.0 < theta < 45.0 and not refined.would_fold(extended_params(PAPER_PARAMS, [theta] + [0.0] * 12))
 
 
 def test_fidelity_is_zero_for_the_model_and_one_for_a_frozen_face(model):
@@ -58,10 +74,27 @@ def test_fidelity_is_zero_for_the_model_and_one_for_a_frozen_face(model):
 def test_mouth_fit_recovers_the_richer_mouth_and_leaves_the_paper_fit_alone(model):
     deformer, paper_fit = model
     fit = ModelFit(deformer, ridge=0.0, mouth=True)
-    mouth = [EXTENDED_PARAMS.index(n) for n in MOUTH_PARAMS]
-    rng = np.random.default_rng(4)
-    for p in random_faces(5, seed=3):
-        p[mouth] = rng.normal(0.0, 0.02, len(mouth))
+    for p in random_faces(5, seed=3, mouth=0.02):
         target = deformer.deform_extended(p)
-        np.testing.assert_allclose(fit.paper(target), np.r_[p[:13], p[mouth]], atol=1e-6)
+        np.testing.assert_allclose(fit.paper(target), np.r_[p[:13], p[MOUTH]], atol=1e-6)
     assert set(paper_fit.lower) <= set(fit.lower) and len(paper_fit.paper(target)) == 13
+
+
+@pytest.mark.parametrize("mouth", [False, True])
+def test_a_face_that_would_fold_is_fitted_again_without_folding(model, mouth):
+    """A lower lip pressed 0.15 below the jaw's carry toward the chin: the best fit would fold the
+    lip's skin, the fit sent does not, and it is no further from the target than what the receiver's
+    fold guard makes of the face as sent."""
+    deformer, _ = model
+    fit = ModelFit(deformer, ridge=0.0, mouth=mouth)
+    names = PAPER_PARAMS + (MOUTH_PARAMS if mouth else ())
+    for theta in (5.0, 12.0):
+        sent = np.zeros(len(EXTENDED_PARAMS))
+        sent[0] = theta
+        sent[4:7] = deformer.feature_vectors(sent[:13], True)[0][2] + [0.0, -0.15, 0.0]
+        assert deformer.would_fold(sent)
+        target = deformer.blend(sent)  # the face as sent, folded
+        params = fit.paper(target)
+        assert not deformer.would_fold(extended_params(names, params))
+        error = lambda p: np.linalg.norm(deformer.deform_extended(p)[fit.lower] - target[fit.lower])  # noqa: E731
+        assert error(extended_params(names, params)) <= error(sent) + 1e-12
