@@ -18,7 +18,9 @@ FACING_Z = 0.3
 def normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(m, 3) unnormalised normals (twice the area) of the triangles ``faces`` (m, 3)."""
     v = np.asarray(vertices, dtype=np.float64)
-    return np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    a = v[faces[:, 0]]
+    (bx, by, bz), (cx, cy, cz) = (v[faces[:, 1]] - a).T, (v[faces[:, 2]] - a).T
+    return np.stack([by * cz - bz * cy, bz * cx - bx * cz, bx * cy - by * cx], axis=1)  # np.cross, 3x faster here
 
 
 class Facing:
@@ -41,7 +43,7 @@ class Facing:
         0 edge-on, negative turned over), and for those facing the viewer at rest, at most the part
         of their screen area that keeps its winding."""
         n = normals(vertices, self._faces)
-        along = np.sum(n * self._unit_over_area, axis=1)
+        along = np.einsum("ij,ij->i", n, self._unit_over_area)
         return np.where(self._facing, np.minimum(along, n[:, 2] / self._rest_z), along)
 
     def folded(self, vertices: np.ndarray, keep: float = 0.0) -> np.ndarray:
