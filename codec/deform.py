@@ -34,7 +34,7 @@ import numpy as np
 from codec.face_model import BaseFace
 from codec.folds import Facing
 from codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS
-from codec.mouth import LOWER_SIDE, MOUTH_PARAMS, MouthModel, build_mouth
+from codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS, MouthModel, build_mouth
 from codec.regions import DEFAULT_RULE, FEATURE_NAMES, RegionMap, build_region_map, feature_positions
 from codec.upper_face import GAZE_PARAMS, UPPER_PARAMS, EyeModel, UpperFace, build_upper_face
 
@@ -134,8 +134,7 @@ class Deformer:
         lower = ~(self.upper.region >= 0)[face.faces].any(axis=1)  # the upper face's own blink folds stay its own
         fills = face.mouth_faces | face.eye_faces
         self._facing = Facing(self._base, face.faces[lower], fills[lower]) if rule == "refined" else None
-        self._lower_lip = [_MOUTH.start + MOUTH_PARAMS.index(f"{point}_{axis}")
-                           for point in LOWER_SIDE[1:] for axis in "xyz"]
+        self._lower_lip = [_MOUTH.start + MOUTH_PARAMS.index(n) for n in LOWER_LIP_PARAMS]
 
     @property
     def hinge_axis(self) -> tuple[np.ndarray, np.ndarray]:
@@ -188,15 +187,17 @@ class Deformer:
     def _unfolded(self, p: np.ndarray, f3_with_jaw: bool) -> np.ndarray:
         out = self.blend(p, f3_with_jaw)
         if self._facing is not None and self._folds(out):
-            out = self.blend(self.unfold(p, f3_with_jaw), f3_with_jaw)
+            out = self.blend(self._scaled_back(p, f3_with_jaw), f3_with_jaw)
         return out
 
     def unfold(self, params: np.ndarray, f3_with_jaw: bool = False) -> np.ndarray:
         """(len(EXTENDED_PARAMS),) the parameters the rule draws for params: themselves, unless the
         refined rule's fold guard (module docstring) scales them back."""
         p = self._extended(params)
-        if self._facing is None or not self._folds(self.blend(p, f3_with_jaw)):
-            return p
+        return self._scaled_back(p, f3_with_jaw) if self.would_fold(p, f3_with_jaw) else p
+
+    def _scaled_back(self, p: np.ndarray, f3_with_jaw: bool) -> np.ndarray:
+        """The fold guard's parameters for p, whose blend folds."""
         carry = self.feature_vectors(np.r_[p[0], np.zeros(12)], True)[0][self._col["F3"]]
         lip = p.copy()  # the lower lip where the jaw carries it, the rest as sent
         lip[4:7] = carry

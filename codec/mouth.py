@@ -35,6 +35,8 @@ UPPER_SIDE = ("F2", "lip_ul", "lip_ur", "lip_uo")
 LOWER_SIDE = ("F3", "lip_ll", "lip_lr", "lip_lo")
 TILING_POINTS = ("F1", "F2", "F3", "F4", "F5", "F6", "F8", "F9", "F10", "F11", "F12", "F13", "F14", "F15")
 MOUTH_PARAMS: tuple[str, ...] = tuple(f"{p}_{a}" for p in MOUTH_POINTS for a in "xyz") + ("jaw_x", "jaw_y", "jaw_z")
+#: The lower lip's new points' parameters, which the refined rule's fold guard holds back first.
+LOWER_LIP_PARAMS: tuple[str, ...] = tuple(f"{p}_{a}" for p in LOWER_SIDE[1:] for a in "xyz")
 
 
 @dataclass(frozen=True, eq=False)

@@ -21,7 +21,7 @@ trigonometric polynomial whose coefficients are two dot products per frame.
 import numpy as np
 
 from codec.deform import EXTENDED_PARAMS, FREE, JAW_FOLLOWING, PAPER_PARAMS, Deformer, extended_params
-from codec.mouth import LOWER_SIDE, MOUTH_PARAMS
+from codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
 from codec.regions import FEATURE_NAMES
 from codec.upper_face import UPPER_PARAMS
 
@@ -117,12 +117,12 @@ class ModelFit:
         # the lower lip's offset from where the jaw carries F3 (and the mouth's lower points): the
         # penalty rows of the refits that keep a face from folding
         f3 = FREE.index("F3")
-        self._lip_columns = [3 * f3 + i for i in range(3)] + ([12 + MOUTH_PARAMS.index(f"{n}_{a}")
-                                                              for n in LOWER_SIDE[1:] for a in "xyz"] if mouth else [])
+        self._lip_columns = [3 * f3 + i for i in range(3)] + ([12 + MOUTH_PARAMS.index(n) for n in LOWER_LIP_PARAMS]
+                                                              if mouth else [])
         f3rel = fpos[col["F3"]] - origin
         self._lip_c1 = np.r_[k1 @ f3rel, np.zeros(len(self._lip_columns) - 3)]
         self._lip_c2 = np.r_[k2 @ f3rel, np.zeros(len(self._lip_columns) - 3)]
-        self._lip_scale = float(np.mean(np.diag(b.T @ b)[self._lip_columns]))
+        self._lip_scale = float(np.mean(np.sum(b[:, self._lip_columns] ** 2, axis=0)))  # their gram diagonal
         self._refits: dict[float, _ThetaSolver] = {}
         self._names = PAPER_PARAMS + (MOUTH_PARAMS if mouth else ())
         self._slots = [EXTENDED_PARAMS.index(n) for n in self._names]

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, PRESETS, Deformer, extended_params
 from codec.face_model import load_base_face
-from codec.mouth import MOUTH_PARAMS
+from codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
 from codec.regions import RULES
 from common.errors import InputError
 from sender.analysis import LAYOUTS
@@ -182,7 +182,7 @@ def test_the_fold_guard_changes_only_what_would_fold():
     keeps them so, when holding the lip at the carry is enough."""
     d = DEFS["refined"]
     rng = np.random.default_rng(10)
-    lower_lip = [EXTENDED_PARAMS.index(n) for n in MOUTH_PARAMS if n.startswith(("lip_ll", "lip_lr", "lip_lo"))]
+    lower_lip = [EXTENDED_PARAMS.index(n) for n in LOWER_LIP_PARAMS]
     guarded = 0
     for _ in range(60):
         params = senders_params(rng, False)
