@@ -27,10 +27,14 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q
 
+# mypy checks the package as it installs (facedeform.codec, ...): build/typecheck/facedeform links to the folders.
 lint: $(STAMP)
-	$(PY) -m pip install -q ruff mypy
+	$(PY) -m pip install -q -e '.[lint]'
 	$(VENV)/bin/ruff check
-	$(VENV)/bin/mypy
+	rm -rf build/typecheck && mkdir -p build/typecheck/facedeform
+	ln -s $(CURDIR)/facedeform/*.py build/typecheck/facedeform/
+	for d in codec common sender receiver protocol experiment; do ln -s $(CURDIR)/$$d build/typecheck/facedeform/$$d; done
+	cd build/typecheck && $(CURDIR)/$(VENV)/bin/mypy --config-file $(CURDIR)/pyproject.toml -p facedeform
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_pipeline.py

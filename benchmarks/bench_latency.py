@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sender.session import first_second
-from sender.sources import open_source
+from facedeform.sender.session import first_second
+from facedeform.sender.sources import open_source
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
@@ -66,10 +66,10 @@ class Recorder:
 
 def send(clip: str, seconds: float, port: int, frames_per_packet: int, times_path: str) -> None:
     """The sender process: the clip looped to ``seconds`` and paced, sent as fd-send -o udp:// sends."""
-    from sender.config import SendConfig
-    from sender.session import SendSession
-    from sender.sources import LoopedSource, PacedSource
-    from sender.transport import open_sink
+    from facedeform.sender.config import SendConfig
+    from facedeform.sender.session import SendSession
+    from facedeform.sender.sources import LoopedSource, PacedSource
+    from facedeform.sender.transport import open_sink
 
     source = Stamped(PacedSource(LoopedSource(clip, seconds)))
     session = SendSession(source, SendConfig(frames_per_packet=frames_per_packet, datagrams=True))  # as -o udp://
@@ -84,12 +84,12 @@ def receive(times_path: str, warm: bool) -> None:
     """The receiver process: prints the port it listens on, then renders the call as fd-recv does;
     ``warm``: first draws a face once, loading the renderer's compiled kernels before the call
     (which fd-recv does once the header arrives)."""
-    from codec.face_model import load_base_face
-    from protocol.stream import Header, steps_for
-    from receiver.face_view import open_view
-    from receiver.session import ReceiveSession
-    from receiver.transport import Listener
-    from sender.analysis import LAYOUTS
+    from facedeform.codec.face_model import load_base_face
+    from facedeform.protocol.stream import Header, steps_for
+    from facedeform.receiver.face_view import open_view
+    from facedeform.receiver.session import ReceiveSession
+    from facedeform.receiver.transport import Listener
+    from facedeform.sender.analysis import LAYOUTS
 
     if warm:
         face, names = load_base_face(), LAYOUTS["mouth"]

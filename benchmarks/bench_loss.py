@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from protocol.encoder import Datagrams
-from protocol.stream import DatagramDecoder, Frame, PacketEncoder
-from sender.session import first_basis, read_dump, stream_header
+from facedeform.protocol.encoder import Datagrams
+from facedeform.protocol.stream import DatagramDecoder, Frame, PacketEncoder
+from facedeform.sender.session import first_basis, read_dump, stream_header
 
 ROOT = Path(__file__).resolve().parents[1]
 LOSSES = (0.0, 0.01, 0.05, 0.10, 0.20)
@@ -105,22 +105,22 @@ def bench_header(dumps: list[Path]) -> None:
 
 def bench_flood(rates: list[int], seconds: float) -> None:
     """Real frames delivered by fd-recv --key while junk datagrams arrive at each rate."""
-    from common.keys import read_key
-    from protocol.secure import SecureSealer
-    from protocol.secure_stream import seal_stream
+    from facedeform.common.keys import read_key
+    from facedeform.protocol.secure import SecureSealer
+    from facedeform.protocol.secure_stream import seal_stream
     from tests.test_receiver_tools import smooth_tracks, stream_packets
     from tests.test_secure_transport import flood, junk_for
 
     n = round(25 * seconds)
     with tempfile.TemporaryDirectory() as tmp:
         key_file = Path(tmp) / "k.key"
-        subprocess.run([sys.executable, "-m", "sender.keygen", str(key_file)], check=True, cwd=ROOT,
+        subprocess.run([sys.executable, "-m", "facedeform.sender.keygen", str(key_file)], check=True, cwd=ROOT,
                        stderr=subprocess.DEVNULL)
         sealed = seal_stream(SecureSealer(read_key(str(key_file))), [p for p, _ in stream_packets(smooth_tracks(n))])
         print("| junk datagrams/s (asked) | junk sent | counted by fd-recv | real frames good | concealed |")
         print("|---|---|---|---|---|")
         for rate in rates:
-            proc = subprocess.Popen([sys.executable, "-m", "receiver.cli", "--listen", "udp://127.0.0.1:0",
+            proc = subprocess.Popen([sys.executable, "-m", "facedeform.receiver.cli", "--listen", "udp://127.0.0.1:0",
                                      "-o", str(Path(tmp) / "out.y4m"), "--size", "64", "--json", "--key", str(key_file),
                                      "--timeout", "2"], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=ROOT)
             port = int(proc.stderr.readline().decode().rsplit(":", 1)[1])

@@ -26,9 +26,9 @@ CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
 
 def send(clip: str, seconds: float) -> None:
     """The sender process: fd-send's defaults on the looped clip, the stream on stdout."""
-    from sender.session import SendSession
-    from sender.sources import LoopedSource
-    from sender.transport import open_sink
+    from facedeform.sender.session import SendSession
+    from facedeform.sender.sources import LoopedSource
+    from facedeform.sender.transport import open_sink
 
     sink = open_sink("-")
     for packets in SendSession(LoopedSource(clip, seconds)).packets():
@@ -47,7 +47,7 @@ def measure(clip: Path, minutes: float) -> tuple[int, float, float, float]:
     started = time.perf_counter()
     sender = subprocess.Popen([sys.executable, __file__, "--send", str(clip), str(60 * minutes)],
                               stdout=subprocess.PIPE, cwd=ROOT)
-    receiver = subprocess.Popen([sys.executable, "-m", "receiver.cli", "-", "-o", "-", "--json"],
+    receiver = subprocess.Popen([sys.executable, "-m", "facedeform.receiver.cli", "-", "-o", "-", "--json"],
                                 stdin=sender.stdout, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=ROOT)
     sender.stdout.close()  # the receiver holds the pipe now
     send_code, send_mb = peak_rss_mb(sender.pid)

@@ -24,12 +24,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from codec.deform import GLOBAL_PARAMS  # noqa: E402
-from codec.face_file import load_face_file  # noqa: E402
-from codec.face_model import ReferencePicture  # noqa: E402
-from codec.picture import Placement  # noqa: E402
-from protocol.stream import Header, steps_for  # noqa: E402
-from receiver.face_view import PictureView  # noqa: E402
+from facedeform.codec.deform import GLOBAL_PARAMS  # noqa: E402
+from facedeform.codec.face_file import Face  # noqa: E402
+from facedeform.codec.face_model import ReferencePicture  # noqa: E402
+from facedeform.codec.picture import Placement  # noqa: E402
+from facedeform.protocol.stream import Header, steps_for  # noqa: E402
+from facedeform.receiver.face_view import PictureView  # noqa: E402
 
 CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
 
@@ -42,9 +42,9 @@ def main() -> None:
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "grid.fdface"
-        subprocess.run([sys.executable, "-m", "sender.enroll", str(CLIP), "-o", str(path), "--motion", "0", "-q"],
-                       check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
-        face = load_face_file(path)
+        subprocess.run([sys.executable, "-m", "facedeform.sender.enroll", str(CLIP), "-o", str(path),
+                        "--motion", "0", "-q"], check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
+        face = Face.load(path).model
     # the picture scaled to size x size (a square crop of it), the projection with it
     image = face.picture.image
     side = min(image.shape[:2])

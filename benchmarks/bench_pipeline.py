@@ -12,11 +12,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from codec.face_model import load_base_face
-from protocol.stream import Frame, StreamDecoder
-from receiver.face_view import FaceView
-from receiver.output import open_writer
-from sender.session import SendSession
+from facedeform.codec.face_model import load_base_face
+from facedeform.protocol.stream import Frame, StreamDecoder
+from facedeform.receiver.face_view import FaceView
+from facedeform.receiver.output import open_writer
+from facedeform.sender.session import SendSession
 
 ROOT = Path(__file__).resolve().parents[1]
 

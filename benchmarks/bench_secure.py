@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from protocol.secure import SecureOpener, SecureSealer
-from protocol.stream import PacketEncoder, frame_bytes
-from sender.session import first_basis, read_dump, stream_header
+from facedeform.protocol.secure import SecureOpener, SecureSealer
+from facedeform.protocol.stream import PacketEncoder, frame_bytes
+from facedeform.sender.session import first_basis, read_dump, stream_header
 
 ROOT = Path(__file__).resolve().parents[1]
 KEY = os.urandom(32)
@@ -28,7 +28,7 @@ KEY = os.urandom(32)
 
 def clip_params(dump: str | None) -> tuple[np.ndarray, np.ndarray, tuple[str, ...], float]:
     if dump is None:
-        from sender.cli import main as send
+        from facedeform.sender.cli import main as send
 
         dump = str(Path(tempfile.mkdtemp()) / "sample.npz")
         send([str(ROOT / "samples" / "grid_bbaf2n.mpg"), "-o", os.devnull, "--dump", dump, "-q"])

@@ -13,9 +13,9 @@ upper-face ones. The rate-distortion column codes the fitted parameters as a str
 level and measures the parameters the decoder outputs.
 
 ``rd`` splits each clip in halves: the personal motion basis (sender/motion.py, as fd-enroll
-learns it, over the paper's fit or over the rest face) comes from the first half only, and every layout is measured on the second half (bits
-of that half coded as a stream of its own, fidelity of the decoded parameters), so the personal
-figures are what a call made after enrolment would get. It writes
+learns it, over the paper's fit or over the rest face) comes from the first half only, and every
+layout is measured on the second half (bits of that half coded as a stream of its own, fidelity
+of the decoded parameters), so the personal figures are what a call made after enrolment would get. It writes
 docs/results/rd_fidelity_s{smoothing}.csv and .png.
 """
 
@@ -24,22 +24,23 @@ import dataclasses
 import sys
 import time
 from datetime import date
+from functools import partial
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from codec.deform import Deformer
-from codec.face_model import load_base_face
-from protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, quality_for_bitrate
-from protocol.quantise import DEAD_ZONE, DEFAULT_QUALITY, QUALITIES
-from sender.analysis import LAYOUTS, FaceAnalyser, Smoothing
-from sender.calibrate import lip_gap
-from sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity
-from sender.sources import VideoSource
-from sender.session import first_basis, first_frames, stream_header
-from sender.enroll import MOTION_PATTERNS
-from sender.tracker import FaceTracker
+from facedeform.codec.deform import Deformer
+from facedeform.codec.face_model import load_base_face
+from facedeform.protocol.quantise import DEAD_ZONE, DEFAULT_QUALITY, QUALITIES
+from facedeform.protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, quality_for_bitrate
+from facedeform.sender.analysis import LAYOUTS, FaceAnalyser, Smoothing
+from facedeform.sender.calibrate import lip_gap
+from facedeform.sender.enrolment import MOTION_PATTERNS
+from facedeform.sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity
+from facedeform.sender.session import first_basis, first_frames, stream_header
+from facedeform.sender.sources import VideoSource
+from facedeform.sender.tracker import FaceTracker
 
 ROOT = Path(__file__).resolve().parents[1]
 DEV = ROOT.parent / "shared" / "samples" / "dev"
@@ -52,6 +53,14 @@ class Replay:
 
     def __init__(self) -> None:
         self.track = lambda landmarks: landmarks
+
+
+def _cell(x) -> str:
+    return f"{x.relative:.2f} ({x.error:.3f})"
+
+
+def _header(names, fps, basis, quality):
+    return stream_header(names, fps, FACE_ID, quality, basis=basis)
 
 
 def padded(frames: list[np.ndarray], size: tuple[int, int]) -> list[np.ndarray]:
@@ -70,7 +79,8 @@ def speed() -> None:
     cv2.setNumThreads(1)
     clip = list(VideoSource(ROOT / "samples" / "grid_bbaf2n.mpg").frames())
     face = load_base_face()
-    print("| size | tracking fps | estimation fps: paper | mouth (default) | full | tracking + estimation fps (default) |")
+    print("| size | tracking fps | estimation fps: paper | mouth (default) | full "
+          "| tracking + estimation fps (default) |")
     print("|---|---|---|---|---|---|")
     for size in SIZES:
         frames = padded(clip, size) * 4
@@ -88,8 +98,8 @@ def speed() -> None:
             rates[layout] = len(frames) / (time.perf_counter() - started)
         track = len(frames) / track_s
         both = 1.0 / (1.0 / track + 1.0 / rates["mouth"])
-        print(f"| {size[0]}x{size[1]} | {track:.0f} | {rates['paper']:.0f} | {rates['mouth']:.0f} | {rates['full']:.0f} "
-              f"| {both:.0f} |")
+        print(f"| {size[0]}x{size[1]} | {track:.0f} | {rates['paper']:.0f} | {rates['mouth']:.0f} "
+              f"| {rates['full']:.0f} | {both:.0f} |")
 
 
 def code(header: Header, results, frames_per_packet: int = 2) -> tuple[float, np.ndarray]:
@@ -160,18 +170,17 @@ def clips(smoothing: float) -> None:
             for q in QUALITIES:
                 bits_at[q], decoded = code(stream_header(names, source.fps, FACE_ID, q, basis=basis), results)
                 rd.append(f"{bits_at[q]:.0f}: {fidelity(deformer, targets, decoded, names).relative:.2f}")
-            f = lambda x: f"{x.relative:.2f} ({x.error:.3f})"
             print(f"| {video.stem} | {layout} | {bits_at[DEFAULT_QUALITY]:.1f} | "
-                  f"{lag(theta, gap):+.2f} | {f(fidelity(deformer, targets, params, names))} | "
-                  f"{f(fidelity(deformer, targets, params, names, analyser.fit.lower))} | "
-                  f"{f(fidelity(deformer, targets, params, names, analyser.fit.upper_landmarks))} | "
+                  f"{lag(theta, gap):+.2f} | {_cell(fidelity(deformer, targets, params, names))} | "
+                  f"{_cell(fidelity(deformer, targets, params, names, analyser.fit.lower))} | "
+                  f"{_cell(fidelity(deformer, targets, params, names, analyser.fit.upper_landmarks))} | "
                   f"{', '.join(rd)} |")
 
 
 def half_taught(base, landmarks: list, fps: float, patterns: int, over: str = "rest"):
     """``base`` with the motion basis fd-enroll would learn from the first half of ``landmarks``
     (None if the half teaches no pattern): what a call after enrolment has."""
-    from sender.motion import learn_motion, residuals
+    from facedeform.sender.motion import learn_motion, residuals
 
     residual, vertices = residuals(landmarks[:len(landmarks) // 2], Replay(), base, fps, over)
     basis = learn_motion(residual, vertices, patterns, over)
@@ -208,7 +217,7 @@ def rd(smoothing: float, patterns: tuple[int, ...], frames_per_packet: int, targ
             cells = []
             sample = first_frames(source.fps, test)
             basis = first_basis(analyser.names, source.fps, sample)
-            header_at = lambda q: stream_header(analyser.names, source.fps, FACE_ID, q, basis=basis)
+            header_at = partial(_header, analyser.names, source.fps, basis)
             chosen = quality_for_bitrate(header_at, sample, target_bits * source.fps,
                                          frames_per_packet, DEAD_ZONE)
             for q, target in [(q, "") for q in QUALITIES] + [(chosen, target_bits)]:
@@ -241,8 +250,9 @@ def rd(smoothing: float, patterns: tuple[int, ...], frames_per_packet: int, targ
     for ax in axes[:, 0]:
         ax.set_ylabel("mouth and jaw error / motion")
     axes.ravel()[0].legend(fontsize=7)
-    fig.suptitle(f"Held-out fidelity against rate, smoothing {smoothing:g}, {frames_per_packet} frames per packet "
-                 f"(stars: fd-send --bitrate's choice for {target_bits:g} bits/frame; dashed: 0.25 and {target_bits:g} bits)")
+    fig.suptitle(f"Held-out fidelity against rate, smoothing {smoothing:g}, {frames_per_packet} frames per "
+                 f"packet (stars: fd-send --bitrate's choice for {target_bits:g} bits/frame; "
+                 f"dashed: 0.25 and {target_bits:g} bits)")
     fig.tight_layout()
     fig.savefig(out.with_suffix(".png"), dpi=90)
     print(f"wrote {out}.csv and .png")

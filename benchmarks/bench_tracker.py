@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sender.tracker import FaceTracker
+from facedeform.sender.tracker import FaceTracker
 
 DEV = Path(__file__).resolve().parents[2] / "shared" / "samples" / "dev"
 

@@ -15,12 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from codec.face_model import load_base_face
-from experiment.metrics import psnr, ssim
-from protocol.stream import PacketEncoder, frame_bytes
-from receiver.face_view import BACKGROUND, FaceView
-from sender.analysis import LAYOUTS
-from sender.session import first_basis, read_dump, stream_header
+from facedeform.codec.face_model import load_base_face
+from facedeform.experiment.metrics import psnr, ssim
+from facedeform.protocol.stream import PacketEncoder, frame_bytes
+from facedeform.receiver.face_view import BACKGROUND, FaceView
+from facedeform.sender.analysis import LAYOUTS
+from facedeform.sender.session import first_basis, read_dump, stream_header
 
 
 def face_pixels(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -24,12 +24,12 @@ from collections import defaultdict
 from pathlib import Path
 from unittest import mock
 
-from protocol import encoder as encoder_module
-from protocol.arith import AdaptiveBit
-from protocol.priors import PATH, key_name, models_for
-from protocol.quantise import QUALITIES
-from protocol.stream import PacketEncoder, frame_bytes
-from sender.session import first_basis, read_dump, stream_header
+from facedeform.protocol import encoder as encoder_module
+from facedeform.protocol.arith import AdaptiveBit
+from facedeform.protocol.priors import PATH, key_name, models_for
+from facedeform.protocol.quantise import QUALITIES
+from facedeform.protocol.stream import PacketEncoder, frame_bytes
+from facedeform.sender.session import first_basis, read_dump, stream_header
 
 SCALE = 16
 

@@ -31,12 +31,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from codec.face_model import BaseFace
-from codec.folds import Facing
-from codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS
-from codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS, MouthModel, build_mouth
-from codec.regions import DEFAULT_RULE, FEATURE_NAMES, RegionMap, build_region_map, feature_positions
-from codec.upper_face import GAZE_PARAMS, UPPER_PARAMS, EyeModel, UpperFace, build_upper_face
+from facedeform.codec.face_model import BaseFace
+from facedeform.codec.folds import Facing
+from facedeform.codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS
+from facedeform.codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS, MouthModel, build_mouth
+from facedeform.codec.regions import DEFAULT_RULE, FEATURE_NAMES, RegionMap, build_region_map, feature_positions
+from facedeform.codec.upper_face import GAZE_PARAMS, UPPER_PARAMS, EyeModel, UpperFace, build_upper_face
 
 PAPER_PARAMS: tuple[str, ...] = (
     "theta", "v2x", "v2y", "v2z", "v3x", "v3y", "v3z",

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from codec.data import data_path
-from codec.deform import EXTENDED_PARAMS
-from common.errors import InputError
+from facedeform.codec.data import data_path
+from facedeform.codec.deform import EXTENDED_PARAMS
+from facedeform.common.errors import InputError
 
 AU_FILE = data_path("au_table.json")
 EXPRESSION_FILE = data_path("expressions.json")

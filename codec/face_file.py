@@ -38,8 +38,8 @@ import hashlib
 import json
 import os
 import struct
-from dataclasses import replace
-from functools import cache
+from dataclasses import dataclass, replace
+from functools import cache, cached_property
 from pathlib import Path
 
 import cv2
@@ -47,7 +47,7 @@ import numpy as np
 from cryptography.exceptions import InvalidTag
 from cryptography.hazmat.primitives.ciphers.aead import AESGCM
 
-from codec.face_model import (
+from facedeform.codec.face_model import (
     N_LANDMARKS,
     BaseFace,
     ReferencePicture,
@@ -56,10 +56,10 @@ from codec.face_model import (
     mouth_vertices,
     normalise,
 )
-from codec.motion_basis import MAX_COMPONENTS, OVER, MotionBasis
-from codec.picture import RINGS, Placement, outer_loop
-from common.errors import InputError
-from common.keys import derive
+from facedeform.codec.motion_basis import MAX_COMPONENTS, OVER, MotionBasis
+from facedeform.codec.picture import RINGS, Placement, outer_loop
+from facedeform.common.errors import InputError
+from facedeform.common.keys import derive
 
 MAGIC = b"FDFACE"
 VERSION = 4
@@ -310,11 +310,6 @@ def read_face_bytes(path: str | Path, key: bytes | None = None) -> bytes:
     return open_face(data, key, str(path))
 
 
-def load_face_file(path: str | Path, key: bytes | None = None) -> BaseFace:
-    """The face model in a file, sealed or not; InputError (one line) if it is missing or not one."""
-    return decode_face(read_face_bytes(path, key), str(path))
-
-
 def save_face_file(data: bytes, path: str | Path, key: bytes | None = None) -> str:
     """Writes a face file's bytes, sealed with ``key`` if given; returns its id (the plain file's)."""
     try:
@@ -322,3 +317,35 @@ def save_face_file(data: bytes, path: str | Path, key: bytes | None = None) -> s
     except OSError as exc:
         raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from None
     return face_id(data)
+
+
+@dataclass(frozen=True, eq=False)
+class Face:
+    """A person's face model as the bytes both ends hold (what fd-enroll writes): ``data`` is the
+    plain face file, ``id`` its sha256 (what a stream names), ``model`` the decoded BaseFace."""
+
+    data: bytes
+
+    @classmethod
+    def load(cls, path: str | Path, key: bytes | None = None) -> "Face":
+        """The face model in a file, sealed or not; InputError (one line) if it is missing or not one."""
+        face = cls(read_face_bytes(path, key))
+        face._decode(str(path))
+        return face
+
+    @property
+    def id(self) -> str:
+        return face_id(self.data)
+
+    @cached_property
+    def model(self) -> BaseFace:
+        return self._decode("face model")
+
+    def _decode(self, origin: str) -> BaseFace:
+        model = decode_face(self.data, origin)
+        self.__dict__["model"] = model  # cached_property's slot, filled once with the origin's name in errors
+        return model
+
+    def save(self, path: str | Path, key: bytes | None = None) -> str:
+        """Writes the file (sealed with ``key`` if given); returns its id."""
+        return save_face_file(self.data, path, key)

@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from codec.data import data_path
-from codec.motion_basis import MotionBasis
-from common.errors import InputError
+from facedeform.codec.data import data_path
+from facedeform.codec.motion_basis import MotionBasis
+from facedeform.common.errors import InputError
 
 DEFAULT_DIR = data_path("")
 MESH_FILE = "canonical_face.pbtxt"

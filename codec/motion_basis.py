@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.errors import InputError
+from facedeform.common.errors import InputError
 
 MAX_COMPONENTS = 16
 OVER = ("rest", "paper")  # what the patterns are displacements from

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import Delaunay
 
-from codec.face_model import BaseFace
-from codec.regions import COVER_TOL, FEATURE_NAMES, RegionMap, project_weights
+from facedeform.codec.face_model import BaseFace
+from facedeform.codec.regions import COVER_TOL, FEATURE_NAMES, RegionMap, project_weights
 
 #: New free points: name -> landmark. "l"/"r": face-left (+x) / face-right; "u"/"l" upper / lower lip.
 MOUTH_POINTS = {"lip_ul": 311, "lip_ur": 81, "lip_ll": 402, "lip_lr": 178, "lip_uo": 0, "lip_lo": 17}

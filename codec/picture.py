@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from codec.deform import HEAD_DEPTH, rotation_from_vector, rotation_vector
-from codec.face_model import BaseFace, ReferencePicture, mouth_vertices
+from facedeform.codec.deform import HEAD_DEPTH, rotation_from_vector, rotation_vector
+from facedeform.codec.face_model import BaseFace, ReferencePicture, mouth_vertices
 
 #: How far the receiver's camera is from the face (base-face units), to turn scale changes into
 #: depth: tz = VIEW_DISTANCE * (1 - 1 / s) for a head s times its reference size.

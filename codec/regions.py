@@ -40,8 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codec.face_model import BaseFace
-from common.errors import InputError
+from facedeform.codec.face_model import BaseFace
+from facedeform.common.errors import InputError
 
 FEATURE_NAMES: tuple[str, ...] = tuple(f"F{i}" for i in range(1, 16))
 COVER_TOL = 1e-9

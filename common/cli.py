@@ -60,7 +60,7 @@ def describe_range(lo: float | None, hi: float | None) -> str:
 def check_output(path: str, option: str, inputs: tuple[str | None, ...] = ()) -> None:
     """Refuses, before any work, an output file that cannot be written (missing or read-only folder, a
     folder itself) or that is one of the ``inputs`` (writing would destroy what is being read)."""
-    from common.errors import InputError
+    from facedeform.common.errors import InputError
 
     if path == "-" or "://" in path:
         return
@@ -78,7 +78,7 @@ def check_output(path: str, option: str, inputs: tuple[str | None, ...] = ()) ->
 
 def run_main(prog: str, body: Callable[[], int]) -> int:
     """Runs ``body``; user mistakes (FdError) and closed pipes become one line and exit 1."""
-    from common.errors import FdError
+    from facedeform.common.errors import FdError
 
     try:
         return body()

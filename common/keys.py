@@ -11,7 +11,7 @@ import os
 from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
-from common.errors import InputError
+from facedeform.common.errors import InputError
 
 KEY_BYTES, KEY_ID_BYTES = 32, 4
 

@@ -10,7 +10,7 @@ they are used.
 """
 
 from collections.abc import Iterator
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -43,11 +43,40 @@ class Encoder(Protocol):
 
 
 class Decoder(Protocol):
-    """Bytes in any chunking -> events; :meth:`close` at the stream's end."""
+    """Bytes in any chunking -> events; :meth:`close` at the stream's end. ``header``: the
+    stream's header once it arrived (else None); ``ended``: its end mark arrived; ``stats``:
+    counters (``protocol.events.Stats``)."""
+
+    @property
+    def header(self) -> Any: ...
+
+    @property
+    def ended(self) -> bool: ...
+
+    @property
+    def stats(self) -> Any: ...
 
     def feed(self, data: bytes) -> list: ...
 
     def close(self) -> list: ...
+
+
+class StreamSource(Protocol):
+    """Where a receiver's stream comes from (a file, stdin, a socket: ``receiver.transport``):
+    batches of the decoder's events with the ``time.perf_counter()`` at which their bytes arrived.
+    ``size``: total bytes if known (progress), ``consumed``: bytes read so far; ``timed_out``: a
+    socket went quiet before the end mark; ``no_stream()``: why nothing decodable arrived."""
+
+    @property
+    def decoder(self) -> Decoder: ...
+
+    size: int | None
+    consumed: int
+    timed_out: bool
+
+    def batches(self) -> Iterator[tuple[list, float]]: ...
+
+    def no_stream(self) -> str: ...
 
 
 class View(Protocol):

@@ -14,15 +14,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from codec.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer
-from codec.face_file import load_face_file
-from codec.face_model import load_base_face
-from codec.picture import SceneMesh, frame_placement
-from protocol.stream import Frame, Header, StreamDecoder, steps_for
-from receiver.face_view import open_view
-from sender.config import SendConfig
-from sender.enroll import main as enroll
-from sender.session import SendSession
+from facedeform.codec.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer
+from facedeform.codec.face_file import Face
+from facedeform.codec.face_model import load_base_face
+from facedeform.codec.picture import SceneMesh, frame_placement
+from facedeform.protocol.stream import Frame, Header, StreamDecoder, steps_for
+from facedeform.receiver.face_view import open_view
+from facedeform.sender.config import SendConfig
+from facedeform.sender.enroll import main as enroll
+from facedeform.sender.session import SendSession
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
@@ -32,11 +32,11 @@ HEIGHT = 288
 
 def rendered(face_file: str | None, look: str, size: tuple[int, int], frames=FRAMES) -> tuple[list, int]:
     """Each of ``frames`` (None: all) as the receiver draws it (BGR), and the stream's bits per frame."""
-    session = SendSession(str(CLIP), SendConfig(face_file=face_file))
+    session = SendSession(str(CLIP), SendConfig(), face=None if face_file is None else Face.load(face_file))
     decoder = StreamDecoder()
     events = [e for chunk in session.stream() for e in decoder.feed(chunk)] + decoder.close()
     decoded = [e for e in events if isinstance(e, Frame)]
-    face = load_base_face() if face_file is None else load_face_file(face_file)
+    face = load_base_face() if face_file is None else Face.load(face_file).model
     view = open_view(look, events[0], face, size)
     images = [cv2.cvtColor(view.render(decoded[i].params), cv2.COLOR_RGB2BGR)
               for i in (range(len(decoded)) if frames is None else frames)]
@@ -52,7 +52,7 @@ def label(image: np.ndarray, text: str) -> None:
 def mesh_figure(face_file: str) -> np.ndarray:
     """The reference picture with the scene mesh (face white, rings yellow), and the whole picture
     drawn with the jaw open and the head turned and moved, its mesh over it and without (BGR)."""
-    face = load_face_file(face_file)
+    face = Face.load(face_file).model
     scene = SceneMesh(face, face.picture)
     pose = np.array([0.0, 18.0, 4.0, 0.06, 0.02, 0.1])  # rx, ry, rz, tx, ty, tz
     full = np.zeros(len(EXTENDED_PARAMS))

@@ -15,11 +15,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from codec.deform import PRESETS, Deformer
-from codec.expressions import expression_params
-from codec.face_model import load_base_face
-from codec.render import Renderer
-from receiver.face_view import portrait_camera
+from facedeform.codec.deform import PRESETS, Deformer
+from facedeform.codec.expressions import expression_params
+from facedeform.codec.face_model import load_base_face
+from facedeform.codec.render import Renderer
+from facedeform.receiver.face_view import portrait_camera
 
 OUT = Path(__file__).resolve().parent
 SIZE = 360

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.errors import FdError, InputError
+from facedeform.common.errors import FdError, InputError
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ import sys
 from functools import lru_cache
 from pathlib import Path
 
-from common.cli import ArgumentParser, run_main
+from facedeform.common.cli import ArgumentParser, run_main
 
 EPILOG = """examples:
   fd-experiment samples/grid_bbaf2n.mpg --out results/
@@ -25,7 +25,7 @@ at its floor). Coded streams, crops and face models stay in <out>/work/.
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    from experiment.baselines import CODECS
+    from facedeform.experiment.baselines import CODECS
 
     p = ArgumentParser(prog="fd-experiment", epilog=EPILOG, description=(
         "Bitrate against quality: each clip is cut to one square face crop per size, written losslessly "
@@ -69,12 +69,12 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    from common.errors import InputError
-    from experiment.baselines import CODECS, check, ladder
-    from experiment.clips import prepare
-    from experiment.metrics import vmaf_available
-    from experiment.report import plot, table, write_rows
-    from experiment.runs import ours_name
+    from facedeform.common.errors import InputError
+    from facedeform.experiment.baselines import CODECS, check, ladder
+    from facedeform.experiment.clips import prepare
+    from facedeform.experiment.metrics import vmaf_available
+    from facedeform.experiment.report import plot, table, write_rows
+    from facedeform.experiment.runs import ours_name
 
     if not (args.faces or args.baselines):
         raise InputError("nothing to run: give --faces or --baselines")
@@ -135,7 +135,7 @@ def _map(function, tasks: list, args):
         try:
             from dask.distributed import Client, as_completed
         except ImportError:
-            from common.errors import FdError
+            from facedeform.common.errors import FdError
 
             raise FdError("--scheduler needs dask.distributed: pip install 'facedeform[cluster]'") from None
         with Client(args.scheduler) as client:
@@ -161,14 +161,14 @@ def _map(function, tasks: list, args):
 
 @lru_cache(maxsize=2)
 def _clip(name: str, path: str, fps: float):
-    from experiment.clips import load
+    from facedeform.experiment.clips import load
 
     return load(name, Path(path), fps)
 
 
 def execute(task: dict) -> dict:
     """One run in a worker: loads the crop (cached per process) and codes and measures it."""
-    from experiment.runs import run_baseline, run_ours
+    from facedeform.experiment.runs import run_baseline, run_ours
 
     clip = _clip(task["name"], task["path"], task["fps"])
     if task["kind"] == "ours":
@@ -179,10 +179,10 @@ def execute(task: dict) -> dict:
 def _side_by_side(clip: dict, rows: list, out: Path) -> None:
     """original | ours (fd-send's default quality, own face if run) | x264 at the rate nearest ours
     (one-off bytes counted) | SVT-AV1 at its floor, from the streams the runs left in the work folder."""
-    from experiment.baselines import CODECS, decode
-    from experiment.clips import read_video
-    from experiment.report import side_by_side
-    from experiment.runs import receive
+    from facedeform.experiment.baselines import CODECS, decode
+    from facedeform.experiment.clips import read_video
+    from facedeform.experiment.report import side_by_side
+    from facedeform.experiment.runs import receive
 
     size, work = clip["size"], out / "work"
     same = [r for r in rows if r["clip"] == clip["name"] and r["size"] == size]

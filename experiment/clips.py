@@ -22,8 +22,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from common.errors import FdError, InputError, NoFaceError
-from sender.sources import VideoSource
+from facedeform.common.errors import FdError, InputError, NoFaceError
+from facedeform.sender.sources import VideoSource
 
 MARGIN = 1.8  # crop side over the face's largest extent: forehead to chin with room around
 RAISE = 0.1  # the crop's centre moves up by this share of its side
@@ -40,7 +40,7 @@ class Clip:
 
 def track(frames_rgb: list) -> np.ndarray:
     """(t, 468, 3) float32 landmarks of RGB frames (NaN rows where no face is found)."""
-    from sender.tracker import FaceTracker
+    from facedeform.sender.tracker import FaceTracker
 
     tracker = FaceTracker()
     out = np.full((len(frames_rgb), 468, 3), np.nan, np.float32)

@@ -20,10 +20,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from codec.face_model import load_base_face
-from sender.calibrate import inter_ocular, lip_gap
-from sender.fidelity import MOUTH_JAW_LANDMARKS
-from sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
+from facedeform.codec.face_model import load_base_face
+from facedeform.sender.calibrate import inter_ocular, lip_gap
+from facedeform.sender.fidelity import MOUTH_JAW_LANDMARKS
+from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
 
 #: Lip landmarks of the tracker (outer and inner contours).
 MOUTH = (0, 13, 14, 17, 37, 39, 40, 61, 78, 80, 81, 82, 84, 87, 88, 91, 95, 146, 178, 181, 185, 191,
@@ -183,8 +183,8 @@ def psnr_rgb(reference: list, decoded: list) -> np.ndarray:
 
 def vmaf_available() -> None:
     """A one-line error unless the FFmpeg in use has the libvmaf filter."""
-    from common.errors import FdError
-    from experiment.baselines import ffmpeg, has
+    from facedeform.common.errors import FdError
+    from facedeform.experiment.baselines import ffmpeg, has
 
     if not has("filters", "libvmaf"):
         raise FdError(f"VMAF: filter libvmaf is missing from {ffmpeg()}")
@@ -197,8 +197,8 @@ def vmaf(reference: list, decoded: list, fps: float) -> float:
     import subprocess
     import tempfile
 
-    from common.errors import FdError
-    from experiment.baselines import ffmpeg
+    from facedeform.common.errors import FdError
+    from facedeform.experiment.baselines import ffmpeg
 
     vmaf_available()
     height, width = reference[0].shape[:2]

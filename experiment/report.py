@@ -147,7 +147,7 @@ def side_by_side(path: Path, fps: float, columns: list[tuple[str, list]]) -> Non
     """An mp4 of labelled columns (original | ours | baseline), one frame per input frame."""
     import cv2
 
-    from receiver.output import open_writer
+    from facedeform.receiver.output import open_writer
 
     frames = []
     for parts in zip(*(f for _, f in columns)):

@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from codec.motion_basis import MAX_COMPONENTS
-from common.errors import FdError
-from experiment import metrics
-from experiment.baselines import CODECS, encode_decode
-from experiment.clips import Clip, read_y4m, track
-from protocol.framing import packet_size
+from facedeform.codec.motion_basis import MAX_COMPONENTS
+from facedeform.common.errors import FdError
+from facedeform.experiment import metrics
+from facedeform.experiment.baselines import CODECS, encode_decode
+from facedeform.experiment.clips import Clip, read_y4m, track
+from facedeform.protocol.framing import packet_size
 
 SEQUENCE = 250  # frames the one-off bytes are spread over (the JVET conditions' sequence length)
 
@@ -51,7 +51,7 @@ def enroll(clip: Clip, work: Path) -> Path:
     path = Path(work) / f"{clip.name}_{clip.frames[0].shape[0]}.fdface"
     if not path.exists():
         half = len(clip.frames) // 2
-        _tool("sender.enroll", str(clip.path), "-o", str(path), "-q", "--seconds", "1",
+        _tool("facedeform.sender.enroll", str(clip.path), "-o", str(path), "-q", "--seconds", "1",
               "--motion", str(MAX_COMPONENTS), "--motion-seconds", f"{half / clip.fps:.3f}")
     return path
 
@@ -72,8 +72,8 @@ def run_ours(clip: Clip, quality: int, layout: str, work: Path, own_face: bool =
     stream = Path(work) / f"{clip.name}_{size}_{name}_q{quality}.fd"
     face = ["--face", str(enroll(clip, work))] if own_face else []
     started = time.perf_counter()
-    _tool("sender.cli", str(clip.path), "--quality", str(quality), "--params", layout, "--send-every", str(every),
-          "-o", str(stream), "-q", *(face + ["--face-by-id"] if own_face else []))
+    _tool("facedeform.sender.cli", str(clip.path), "--quality", str(quality), "--params", layout,
+          "--send-every", str(every), "-o", str(stream), "-q", *(face + ["--face-by-id"] if own_face else []))
     encode_s = time.perf_counter() - started
     started = time.perf_counter()
     decoded = receive(stream, size, face[1:])
@@ -96,7 +96,7 @@ def receive(stream: Path, size: int, face: list) -> list:
     """fd-recv's frames of a stream file at ``size`` x ``size``: the whole picture with the speaker's
     model (``face``: [path]), the shaded generic face without one ([])."""
     look = ["--look", "picture"] if face else []
-    return read_y4m(_tool("receiver.cli", str(stream), "-o", "-", "--size", str(size), "-q",
+    return read_y4m(_tool("facedeform.receiver.cli", str(stream), "-o", "-", "--size", str(size), "-q",
                           *(["--face", *face] if face else []), *look))
 
 

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from common.errors import BitstreamError
+from facedeform.common.errors import BitstreamError
 
 #: The header carries each entry as a signed byte, this many per unit.
 SCALE = 127

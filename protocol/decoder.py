@@ -18,11 +18,11 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from common.errors import BitstreamError
-from protocol.arith import Decoder, Incomplete
-from protocol.entropy import GroupState
-from protocol.events import Damage, End, Frame, Model, Stats
-from protocol.framing import (
+from facedeform.common.errors import BitstreamError
+from facedeform.protocol.arith import Decoder, Incomplete
+from facedeform.protocol.entropy import GroupState
+from facedeform.protocol.events import Damage, End, Frame, Model, Stats
+from facedeform.protocol.framing import (
     DELTA,
     END,
     HEADER,
@@ -42,8 +42,8 @@ from protocol.framing import (
     parse,
     read_varint,
 )
-from protocol.header import ID_BYTES, Header, parse_header
-from protocol.priors import models_for
+from facedeform.protocol.header import ID_BYTES, Header, parse_header
+from facedeform.protocol.priors import models_for
 
 MAX_SEEK = 1 << 16  # bytes searched for a header before the input is declared foreign
 

@@ -9,10 +9,10 @@ quantised value, so it is the only exact prediction of the receiver.
 
 import numpy as np
 
-from common.errors import BitstreamError
-from protocol.arith import Encoder
-from protocol.entropy import GroupState
-from protocol.framing import (
+from facedeform.common.errors import BitstreamError
+from facedeform.protocol.arith import Encoder
+from facedeform.protocol.entropy import GroupState
+from facedeform.protocol.framing import (
     DELTA,
     END,
     HEADER,
@@ -31,9 +31,9 @@ from protocol.framing import (
     type_byte,
     varint,
 )
-from protocol.header import Header, encode_header
-from protocol.priors import models_for
-from protocol.quantise import DEAD_ZONE, hold_or_round
+from facedeform.protocol.header import Header, encode_header
+from facedeform.protocol.priors import models_for
+from facedeform.protocol.quantise import DEAD_ZONE, hold_or_round
 
 MODEL_CHUNK = 1024
 COPIES = 1  # earlier frames packets a datagram carries again (Datagrams): one lost datagram costs nothing

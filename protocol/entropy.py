@@ -22,8 +22,8 @@ the one before.
 
 from collections.abc import Callable
 
-from common.errors import BitstreamError
-from protocol.arith import AdaptiveBit, Decoder, Encoder
+from facedeform.common.errors import BitstreamError
+from facedeform.protocol.arith import AdaptiveBit, Decoder, Encoder
 
 MAX_EXP = 24  # magnitudes below 2**25 steps; a longer prefix can only be damage
 _PREFIX_MODELS = 8

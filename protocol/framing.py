@@ -29,7 +29,7 @@ import binascii
 import zlib
 from dataclasses import dataclass
 
-from common.errors import BitstreamError
+from facedeform.common.errors import BitstreamError
 
 SYNC = 0xFD
 HEADER, MODEL, KEY, DELTA, END = range(5)

@@ -11,10 +11,10 @@ from functools import cached_property
 
 import numpy as np
 
-from common.errors import BitstreamError
-from protocol.basis import basis_matrices
-from protocol.framing import read_varint, varint
-from protocol.quantise import dequantise
+from facedeform.common.errors import BitstreamError
+from facedeform.protocol.basis import basis_matrices
+from facedeform.protocol.framing import read_varint, varint
+from facedeform.protocol.quantise import dequantise
 
 MAGIC = b"FD"
 #: The one version written and read; a decoder refuses any other (docs/bitstream.md, "Evolution").

@@ -13,11 +13,11 @@ import json
 from functools import cache
 from pathlib import Path
 
-from common.errors import FdError
-from protocol.arith import AdaptiveBit
-from protocol.entropy import NewBit
-from protocol.header import Header
-from protocol.quantise import DEFAULT_QUALITY, QUALITIES
+from facedeform.common.errors import FdError
+from facedeform.protocol.arith import AdaptiveBit
+from facedeform.protocol.entropy import NewBit
+from facedeform.protocol.header import Header
+from facedeform.protocol.quantise import DEFAULT_QUALITY, QUALITIES
 
 SHA256 = "c0cae46dd955b71e4bb5e5bd333fc04d3e397944ea1f9b630246bc498c50efa1"
 PATH = Path(__file__).with_name("priors.json")

@@ -13,7 +13,7 @@ decoder does not know the dead zone; it bounds the error instead of half a step.
 
 import numpy as np
 
-from common.errors import BitstreamError
+from facedeform.common.errors import BitstreamError
 
 QUALITIES = (1, 2, 3, 4, 5)  # coarse to fine
 DEFAULT_QUALITY = 3

@@ -12,10 +12,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from protocol.encoder import PacketEncoder, stream_size
-from protocol.header import Header
-from protocol.quantise import QUALITIES
-from protocol.secure import envelope_bytes
+from facedeform.protocol.encoder import PacketEncoder, stream_size
+from facedeform.protocol.header import Header
+from facedeform.protocol.quantise import QUALITIES
+from facedeform.protocol.secure import envelope_bytes
 
 
 def sample_bits_per_second(header: Header, sample: Sequence[tuple[np.ndarray, bool]], frames_per_packet: int,

@@ -31,9 +31,9 @@ from dataclasses import dataclass
 
 from cryptography.hazmat.primitives.ciphers import Cipher, algorithms, modes
 
-from common.errors import BitstreamError, InputError
-from common.keys import KEY_ID_BYTES, derive, key_id
-from protocol.framing import MAX_BODY, read_varint, varint
+from facedeform.common.errors import BitstreamError, InputError
+from facedeform.common.keys import KEY_ID_BYTES, derive, key_id
+from facedeform.protocol.framing import MAX_BODY, read_varint, varint
 
 MAGIC = b"FDS\x02"  # version 2: envelopes with a length
 SALT_BYTES = 16

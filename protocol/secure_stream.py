@@ -9,9 +9,9 @@ resumes at the next sync byte); a datagram that fails is just dropped, since it
 may not be ours at all (a lost packet of ours shows at the next delta's check).
 """
 
-from common.errors import BitstreamError
-from protocol.decoder import MAX_SEEK, ByteStreamDecoder, PacketDecoder, WrapsPacketDecoder
-from protocol.secure import MAGIC, WINDOW, SecureOpener, SecureSealer, SecureStats, preamble_size
+from facedeform.common.errors import BitstreamError
+from facedeform.protocol.decoder import MAX_SEEK, ByteStreamDecoder, PacketDecoder, WrapsPacketDecoder
+from facedeform.protocol.secure import MAGIC, WINDOW, SecureOpener, SecureSealer, SecureStats, preamble_size
 
 
 class _Secure(WrapsPacketDecoder):

@@ -6,12 +6,12 @@ Pipes, files and sockets belong to the command-line tools. The format is
 specified in docs/bitstream.md.
 """
 
-from protocol.decoder import DatagramDecoder, PacketDecoder, StreamDecoder
-from protocol.encoder import Datagrams, PacketEncoder, StreamEncoder, frame_bytes, stream_size
-from protocol.events import Damage, End, Frame, Model, Stats
-from protocol.header import VERSION, Header
-from protocol.quantise import DEFAULT_QUALITY, QUALITIES, steps_for
-from protocol.rate import quality_for_bitrate
+from facedeform.protocol.decoder import DatagramDecoder, PacketDecoder, StreamDecoder
+from facedeform.protocol.encoder import Datagrams, PacketEncoder, StreamEncoder, frame_bytes, stream_size
+from facedeform.protocol.events import Damage, End, Frame, Model, Stats
+from facedeform.protocol.header import VERSION, Header
+from facedeform.protocol.quantise import DEFAULT_QUALITY, QUALITIES, steps_for
+from facedeform.protocol.rate import quality_for_bitrate
 
 __all__ = [
     "DEFAULT_QUALITY", "QUALITIES", "VERSION", "Damage", "DatagramDecoder", "Datagrams", "End", "Frame", "Header",

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from codec.regions import DEFAULT_RULE, RULES
-from common.cli import ArgumentParser, check_output, number, parse_size, run_main
+from facedeform.codec.regions import DEFAULT_RULE, RULES
+from facedeform.common.cli import ArgumentParser, check_output, number, parse_size, run_main
 
 MAX_SECONDS = 3600  # an hour of animation: a longer script is a mistake, not a wish
 EPILOG = """script example (samples/animation.txt):
@@ -55,8 +55,8 @@ def main(argv=None) -> int:
 
 def read_script(path: str) -> tuple[np.ndarray, np.ndarray]:
     """(k,) increasing key times and (k, len(EXTENDED_PARAMS)) parameters of a script file."""
-    from codec.expressions import au_params, expression_params
-    from common.errors import InputError
+    from facedeform.codec.expressions import au_params, expression_params
+    from facedeform.common.errors import InputError
 
     try:
         text = Path(path).read_text(encoding="utf-8")
@@ -90,9 +90,9 @@ def read_script(path: str) -> tuple[np.ndarray, np.ndarray]:
 
 def _line_params(words: list[str], where: str) -> np.ndarray:
     """Sum of 'name [intensity]' pairs of one text key."""
-    from codec.deform import EXTENDED_PARAMS
-    from codec.expressions import expression_params
-    from common.errors import InputError
+    from facedeform.codec.deform import EXTENDED_PARAMS
+    from facedeform.codec.expressions import expression_params
+    from facedeform.common.errors import InputError
 
     if not words:
         raise InputError(f"{where}: a time needs an expression after it")
@@ -123,11 +123,11 @@ def interpolate(times: np.ndarray, keys: np.ndarray, t: float) -> np.ndarray:
 
 
 def _run(args) -> int:
-    from codec.deform import Deformer
-    from codec.face_model import load_base_face
-    from common.errors import InputError
-    from receiver.face_view import face_renderer, portrait_camera
-    from receiver.output import open_writer
+    from facedeform.codec.deform import Deformer
+    from facedeform.codec.face_model import load_base_face
+    from facedeform.common.errors import InputError
+    from facedeform.receiver.face_view import face_renderer, portrait_camera
+    from facedeform.receiver.output import open_writer
 
     check_output(args.output, "-o", (args.script,))
     times, keys = read_script(args.script)

@@ -5,8 +5,8 @@ import json
 import sys
 import time
 
-from common.cli import ArgumentParser, check_output, number, parse_size, run_main
-from receiver.face_view import LOOKS
+from facedeform.common.cli import ArgumentParser, check_output, number, parse_size, run_main
+from facedeform.receiver.face_view import LOOKS
 
 EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
@@ -77,14 +77,14 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    from codec.face_file import load_face_file
-    from common.errors import InputError
-    from common.keys import read_key
-    from common.progress import progress_for
-    from receiver.output import Display, open_writer
-    from receiver.session import ReceiveSession
-    from receiver.transport import Listener, open_file
-    from receiver.viewer import Viewer, live_stats
+    from facedeform.codec.face_file import Face
+    from facedeform.common.errors import InputError
+    from facedeform.common.keys import read_key
+    from facedeform.common.progress import progress_for
+    from facedeform.receiver.output import Display, open_writer
+    from facedeform.receiver.session import ReceiveSession
+    from facedeform.receiver.transport import Listener, open_file
+    from facedeform.receiver.viewer import Viewer, live_stats
 
     if args.output == "-" and sys.stdout.isatty():
         raise InputError("refusing to write video to a terminal: use -o FILE.mp4 or pipe it (| ffplay -)")
@@ -92,7 +92,7 @@ def _run(args) -> int:
         if path:
             check_output(path, option, (args.input, args.face))
     key = read_key(args.key) if args.key else None
-    face = load_face_file(args.face, key) if args.face else None
+    face = Face.load(args.face, key).model if args.face else None
     display = Display() if args.show else None
     viewer = Viewer(args.serve) if args.serve else None
     if viewer and not args.quiet:
@@ -103,7 +103,7 @@ def _run(args) -> int:
         return sinks + [s for s in (display, viewer) if s]
 
     if args.listen:
-        from codec.render import warm_up
+        from facedeform.codec.render import warm_up
 
         warm_up()  # before listening: the first frame then waits only for the call, not for the renderer
     listener = Listener(args.listen, args.timeout, key, args.headers) if args.listen else None

@@ -7,14 +7,14 @@ picture warped by the moving face (PictureView, codec/picture.py).
 
 import numpy as np
 
-from codec.camera import Camera
-from codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, Deformer
-from codec.face_model import BaseFace
-from codec.picture import SceneMesh, face_texture, frame_placement, global_matrix
-from codec.render import Material, Renderer
-from common.errors import BitstreamError, InputError
-from common.stages import View
-from protocol.stream import Header
+from facedeform.codec.camera import Camera
+from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, Deformer
+from facedeform.codec.face_model import BaseFace
+from facedeform.codec.picture import SceneMesh, face_texture, frame_placement, global_matrix
+from facedeform.codec.render import Material, Renderer
+from facedeform.common.errors import BitstreamError, InputError
+from facedeform.common.stages import View
+from facedeform.protocol.stream import Header
 
 FIELD_OF_VIEW = 20.0  # degrees: a portrait lens, little perspective distortion
 FRAMING = 1.35  # the view's height over the face's height

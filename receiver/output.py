@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from common.errors import InputError
+from facedeform.common.errors import InputError
 
 VIDEO_SUFFIXES = (".mp4", ".mkv", ".mov")
 

@@ -9,13 +9,13 @@ from fractions import Fraction
 
 import numpy as np
 
-from codec.face_file import decode_face
-from codec.face_model import BaseFace, load_base_face
-from common.errors import BitstreamError, InputError
-from common.npz import NpzAppender
-from common.stages import Sink, View
-from protocol.stream import Damage, End, Frame, Header, Model
-from receiver.face_view import default_look, open_view, output_size
+from facedeform.codec.face_file import decode_face
+from facedeform.codec.face_model import BaseFace, load_base_face
+from facedeform.common.errors import BitstreamError, InputError
+from facedeform.common.npz import NpzAppender
+from facedeform.common.stages import Sink, StreamSource, View
+from facedeform.protocol.stream import Damage, End, Frame, Header, Model
+from facedeform.receiver.face_view import default_look, open_view, output_size
 
 LATENCY_WINDOW = 10_000  # frames: latency statistics cover the last 6-7 minutes at 25 fps
 
@@ -49,7 +49,7 @@ class ReceiveSession:
         self._header: Header | None = None
         self._view: View | None = None
         self._ratio = Fraction(1)
-        self.source = None
+        self.source: StreamSource | None = None
         self.face_kind: str | None = None
         self.face_id: str | None = None
         self.frames = self.concealed = self.interpolated = self.written = 0
@@ -59,7 +59,7 @@ class ReceiveSession:
         self._dump_path = dump
         self._dump: NpzAppender | None = None
 
-    def run(self, source, on_batch=None) -> None:
+    def run(self, source: StreamSource, on_batch=None) -> None:
         """Consumes ``source`` (receiver.transport) to its end; ``on_batch()`` after each arrival.
 
         Raises BitstreamError for a byte stream cut short (after writing what
@@ -67,14 +67,26 @@ class ReceiveSession:
         """
         self.source = source
         for events, arrived in source.batches():
-            for event in events:
-                self._handle(event, arrived)
+            self.handle(events, arrived)
             if on_batch is not None:
                 on_batch()
-        decoder = source.decoder
-        if decoder.header is None:
+        self.finish()
+
+    def handle(self, events: list, arrived: float) -> None:
+        """Renders and writes what one batch of decoded events completes (``arrived``: its
+        ``time.perf_counter()``, for the latency)."""
+        for event in events:
+            self._handle(event, arrived)
+
+    def finish(self) -> None:
+        """Once ``self.source`` has ended: raises BitstreamError if it held no stream or was cut
+        short before its end mark; a socket that went quiet is a warning."""
+        source = self.source
+        if source is None:
+            raise RuntimeError("finish() before a source was read")
+        if source.decoder.header is None:
             raise BitstreamError(source.no_stream())
-        if decoder.ended:
+        if source.decoder.ended:
             return
         if source.timed_out:
             self._warn(f"nothing arrived for a while: ending after {self.frames} frames, "

@@ -18,12 +18,12 @@ from collections.abc import Iterator
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from common.errors import BitstreamError, InputError
-from protocol.framing import MAX_BODY, SYNC
-from protocol.header import Header, encode_header, parse_header
-from protocol.secure import MAGIC
-from protocol.secure_stream import SecureDatagramDecoder, SecureStreamDecoder
-from protocol.stream import Damage, DatagramDecoder, StreamDecoder
+from facedeform.common.errors import BitstreamError, InputError
+from facedeform.protocol.framing import MAX_BODY, SYNC
+from facedeform.protocol.header import Header, encode_header, parse_header
+from facedeform.protocol.secure import MAGIC
+from facedeform.protocol.secure_stream import SecureDatagramDecoder, SecureStreamDecoder
+from facedeform.protocol.stream import Damage, DatagramDecoder, StreamDecoder
 
 CHUNK = 1 << 10  # bytes read at a time: a batch of events (a few hundred frames) stays small however long the file
 DEFAULT_HOST = "127.0.0.1"  # listening on every interface is a choice the user makes by name

@@ -18,7 +18,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 import cv2
 import numpy as np
 
-from common.errors import InputError
+from facedeform.common.errors import InputError
 
 DEFAULT_HOST = "127.0.0.1"  # serving every interface is a choice the user makes by name
 BOUNDARY = "fdframe"

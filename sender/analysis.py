@@ -15,20 +15,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codec.deform import GLOBAL_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
-from codec.face_model import BaseFace
-from codec.mouth import MOUTH_PARAMS
-from codec.picture import VIEW_DISTANCE, Placement, head_pivot, relative_pose
-from codec.regions import DEFAULT_RULE
-from codec.upper_face import UPPER_PARAMS
-from common.errors import InputError, NoFaceError
-from common.stages import Tracker
-from protocol.quantise import VECTOR_STEP, steps_for
-from sender.calibrate import RestFace, choose_rest, fapu_ratios
-from sender.fit import ModelFit
-from sender.motion_global import GlobalMotion
-from sender.pose import STABLE_LANDMARKS, Pose, fit_pose, image_to_face_axes
-from sender.smoothing import OneEuroFilter
+from facedeform.codec.deform import GLOBAL_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
+from facedeform.codec.face_model import BaseFace
+from facedeform.codec.mouth import MOUTH_PARAMS
+from facedeform.codec.picture import VIEW_DISTANCE, Placement, head_pivot, relative_pose
+from facedeform.codec.regions import DEFAULT_RULE
+from facedeform.codec.upper_face import UPPER_PARAMS
+from facedeform.common.errors import InputError, NoFaceError
+from facedeform.common.stages import Tracker
+from facedeform.protocol.quantise import VECTOR_STEP, steps_for
+from facedeform.sender.calibrate import RestFace, choose_rest, fapu_ratios
+from facedeform.sender.fit import ModelFit
+from facedeform.sender.motion_global import GlobalMotion
+from facedeform.sender.pose import STABLE_LANDMARKS, Pose, fit_pose, image_to_face_axes
+from facedeform.sender.smoothing import OneEuroFilter
 
 #: Per frame without a face, the parameters keep this fraction of their value: the face relaxes to rest.
 RELAX = 0.8

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codec.face_model import BaseFace
-from common.errors import InputError
+from facedeform.codec.face_model import BaseFace
+from facedeform.common.errors import InputError
 
 MOUTH_CORNERS = (61, 291)
 SUBNASALE, UPPER_LIP, LOWER_LIP = 2, 13, 14

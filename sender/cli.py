@@ -4,11 +4,11 @@ import argparse
 import json
 import sys
 
-from codec.regions import RULES
-from common.cli import ArgumentParser, check_output, number, run_main
-from protocol.secure import TAG_BITS
-from sender.analysis import LAYOUT_NAMES
-from sender.config import BITRATE, LIMITS, SendConfig, default
+from facedeform.codec.regions import RULES
+from facedeform.common.cli import ArgumentParser, check_output, number, run_main
+from facedeform.protocol.secure import TAG_BITS
+from facedeform.sender.analysis import LAYOUT_NAMES
+from facedeform.sender.config import BITRATE, LIMITS, SendConfig, default
 
 EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
@@ -123,11 +123,12 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    from common.keys import read_key
-    from common.progress import progress_for
-    from sender.session import SendSession
-    from sender.sources import PacedSource, open_source
-    from sender.transport import check_destination, open_sink
+    from facedeform.codec.face_file import Face
+    from facedeform.common.keys import read_key
+    from facedeform.common.progress import progress_for
+    from facedeform.sender.session import SendSession
+    from facedeform.sender.sources import PacedSource, open_source
+    from facedeform.sender.transport import check_destination, open_sink
 
     check_output(args.output, "-o", (args.input,))
     check_destination(args.output)
@@ -138,12 +139,13 @@ def _run(args) -> int:
     if args.realtime and args.camera is None:
         source = PacedSource(source)
     progress = progress_for("fd-send", args.quiet or args.json) if source.length else None
-    config = SendConfig(args.quality, args.frames_per_packet, args.params, args.neutral, args.smoothing, args.face,
+    face = Face.load(args.face, key) if args.face else None  # a sealed file opens with the stream's key
+    config = SendConfig(args.quality, args.frames_per_packet, args.params, args.neutral, args.smoothing,
                         embed_face=not args.face_by_id, key=key, tag_bits=args.tag_bits or default("tag_bits"),
                         dead_zone=args.dead_zone, bitrate=None if args.bitrate is None else 1000 * args.bitrate,
                         basis=not args.no_basis, divisor=args.send_every,
                         datagrams=args.output.startswith("udp://"), rule=args.rule)
-    session = SendSession(source, config, args.dump)
+    session = SendSession(source, config, args.dump, face)
     sink = None
     try:
         for packets in session.packets():

@@ -8,15 +8,15 @@ whether it came from the command line or from code.
 
 from dataclasses import dataclass, fields
 
-from codec.regions import DEFAULT_RULE, check_rule
-from common.cli import describe_range, in_range
-from common.errors import InputError
-from protocol.encoder import MAX_DEAD_ZONE
-from protocol.framing import MAX_COUNT
-from protocol.header import MAX_DIVISOR
-from protocol.quantise import DEAD_ZONE, DEFAULT_QUALITY, QUALITIES
-from protocol.secure import DEFAULT_TAG_BITS, TAG_BITS
-from sender.analysis import LAYOUT_NAMES
+from facedeform.codec.regions import DEFAULT_RULE, check_rule
+from facedeform.common.cli import describe_range, in_range
+from facedeform.common.errors import InputError
+from facedeform.protocol.encoder import MAX_DEAD_ZONE
+from facedeform.protocol.framing import MAX_COUNT
+from facedeform.protocol.header import MAX_DIVISOR
+from facedeform.protocol.quantise import DEAD_ZONE, DEFAULT_QUALITY, QUALITIES
+from facedeform.protocol.secure import DEFAULT_TAG_BITS, TAG_BITS
+from facedeform.sender.analysis import LAYOUT_NAMES
 
 BITRATE = (1.0, 1e6)  # bit/s
 #: name -> (lowest, highest) accepted value of the numeric settings (inclusive; None: unbounded).
@@ -38,8 +38,8 @@ class SendConfig:
     quality: quantiser level (``protocol.quantise``); frames_per_packet: frames sent together
     (fewer framing bits, more latency); layout: one of ``sender.analysis.LAYOUT_NAMES``;
     neutral: the rest frame's index (None: chosen in the first second); smoothing: One Euro
-    strength (0: off); face_file: a personal face model (fd-enroll) to fit and render instead of
-    the generic face, carried in the stream when ``embed_face``; key: a pre-shared key
+    strength (0: off); embed_face: a personal face model given to the session (fd-enroll) is
+    carried in the stream (else only its id, the receiver holding it); key: a pre-shared key
     (``common.keys``) to seal every packet with, tags of ``tag_bits``; dead_zone: the encoder's
     dead zone in quantiser steps (0.5: plain rounding); bitrate: bit/s to aim at instead of
     ``quality`` (the finest level that codes the call's first second within it, chosen before the
@@ -56,7 +56,6 @@ class SendConfig:
     layout: str = "auto"
     neutral: int | None = None
     smoothing: float = 1.0
-    face_file: str | None = None
     embed_face: bool = True
     key: bytes | None = None
     tag_bits: int = DEFAULT_TAG_BITS

@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from common.errors import InputError
+from facedeform.common.errors import InputError
 
 MODELS = Path(__file__).parent / "models"
 INPUT_SIZE = 128

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codec.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer, extended_params
-from sender.calibrate import inter_ocular
+from facedeform.codec.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer, extended_params
+from facedeform.sender.calibrate import inter_ocular
 
 _OUTER_LIPS = (61, 146, 91, 181, 84, 17, 314, 405, 321, 375,
                291, 409, 270, 269, 267, 0, 37, 39, 40, 185)  # fmt: skip

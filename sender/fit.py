@@ -20,10 +20,10 @@ trigonometric polynomial whose coefficients are two dot products per frame.
 
 import numpy as np
 
-from codec.deform import EXTENDED_PARAMS, FREE, JAW_FOLLOWING, PAPER_PARAMS, Deformer, extended_params
-from codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
-from codec.regions import FEATURE_NAMES
-from codec.upper_face import UPPER_PARAMS
+from facedeform.codec.deform import EXTENDED_PARAMS, FREE, JAW_FOLLOWING, PAPER_PARAMS, Deformer, extended_params
+from facedeform.codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
+from facedeform.codec.regions import FEATURE_NAMES
+from facedeform.codec.upper_face import UPPER_PARAMS
 
 THETA_RANGE = (-15.0, 45.0)  # degrees: a little closing past rest, a wide yawn
 #: Ridge weight, relative to each unknown's own normal-equation diagonal: keeps poorly

@@ -7,8 +7,8 @@ the streams sealed with it.
 
 import sys
 
-from common.cli import ArgumentParser, run_main
-from common.keys import key_id, write_key
+from facedeform.common.cli import ArgumentParser, run_main
+from facedeform.common.keys import key_id, write_key
 
 EPILOG = """examples:
   fd-keygen call.key

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from sender.detector import load_model
+from facedeform.sender.detector import load_model
 
 INPUT_SIZE = 192
 #: The crop is this much larger than the face box, on the box's longer side.

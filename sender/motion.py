@@ -12,10 +12,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from codec.deform import Deformer
-from codec.face_model import BaseFace
-from codec.motion_basis import MotionBasis, learn_basis
-from sender.analysis import FaceAnalyser, Smoothing
+from facedeform.codec.deform import Deformer
+from facedeform.codec.face_model import BaseFace
+from facedeform.codec.motion_basis import MotionBasis, learn_basis
+from facedeform.sender.analysis import FaceAnalyser, Smoothing
 
 #: Frames with a face needed per pattern. Held out on the dev clips (a basis learned from each
 #: clip's first half, measured on the second), 4 beat 8 on the shortest clip (9 patterns instead

@@ -17,9 +17,9 @@ rings.
 import cv2
 import numpy as np
 
-from codec.face_model import BaseFace, ReferencePicture
-from codec.picture import Placement, SceneMesh, global_motion
-from sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
+from facedeform.codec.face_model import BaseFace, ReferencePicture
+from facedeform.codec.picture import Placement, SceneMesh, global_motion
+from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
 
 #: The face's landmark hull grown by this factor about its centre, and everything below it (neck and
 #: body), is left out where the points start and where they land: hair, ears and shoulders move with

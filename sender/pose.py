@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codec.deform import rotation_vector
-from codec.picture import Placement
+from facedeform.codec.deform import rotation_vector
+from facedeform.codec.picture import Placement
 
 #: Landmarks that barely move with expression: forehead, nose bridge and tip, eye
 #: corners, temples and upper cheekbones. Jaw-line, lip and lid landmarks stay out.

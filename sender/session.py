@@ -7,16 +7,16 @@ from pathlib import Path
 
 import numpy as np
 
-from codec.deform import GLOBAL_PARAMS, POSE_PARAMS
-from codec.face_file import decode_face, read_face_bytes
-from codec.face_model import load_base_face
-from codec.motion_basis import BASIS_PARAMS
-from codec.regions import DEFAULT_RULE
-from common.npz import NpzAppender
-from common.stages import Source
-from protocol.basis import principal_basis
-from protocol.secure import SecureSealer
-from protocol.stream import (
+from facedeform.codec.deform import GLOBAL_PARAMS, POSE_PARAMS
+from facedeform.codec.face_file import Face
+from facedeform.codec.face_model import load_base_face
+from facedeform.codec.motion_basis import BASIS_PARAMS
+from facedeform.codec.regions import DEFAULT_RULE
+from facedeform.common.npz import NpzAppender
+from facedeform.common.stages import Source
+from facedeform.protocol.basis import principal_basis
+from facedeform.protocol.secure import SecureSealer
+from facedeform.protocol.stream import (
     DEFAULT_QUALITY,
     Datagrams,
     Header,
@@ -26,9 +26,9 @@ from protocol.stream import (
     steps_for,
     stream_size,
 )
-from sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
-from sender.config import SendConfig
-from sender.sources import open_source
+from facedeform.sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
+from facedeform.sender.config import SendConfig
+from facedeform.sender.sources import open_source
 
 
 def stream_header(names: tuple[str, ...], fps: float, face_id: str, quality: int = DEFAULT_QUALITY,
@@ -106,26 +106,24 @@ class SendSession:
 
     source: a path (video file, image directory or %d pattern) or an opened
     source (``sender.sources``); config: how the call is coded (:class:`sender.config.SendConfig`);
+    face: the person's face model (fd-enroll) to fit and render instead of the generic face,
+    carried in the stream when ``config.embed_face``;
     dump: a .npz path to write the research dump to (:func:`dump_writer`), finished by :meth:`close`.
     Memory does not grow with the call: only counters are kept of the frames sent.
     """
 
-    def __init__(self, source: str | Source, config: SendConfig | None = None, dump: str | Path | None = None) -> None:
-        from sender.tracker import FaceTracker
+    def __init__(self, source: str | Source, config: SendConfig | None = None, dump: str | Path | None = None,
+                 face: Face | None = None) -> None:
+        from facedeform.sender.tracker import FaceTracker
 
         self.config = config = config or SendConfig()
         self.source = open_source(source) if isinstance(source, str) else source
-        model = b""
-        if config.face_file is None:
-            face = load_base_face()
-        else:
-            data = read_face_bytes(config.face_file, config.key)  # a sealed file opens with the stream's key
-            face = decode_face(data, config.face_file)
-            model = data if config.embed_face else b""
+        model = load_base_face() if face is None else face.model
         fps = self.source.fps
-        self.analyser = FaceAnalyser(FaceTracker(), face, fps, config.layout, calibration_frames=round(fps),
+        self.analyser = FaceAnalyser(FaceTracker(), model, fps, config.layout, calibration_frames=round(fps),
                                      neutral=config.neutral, smoothing=Smoothing(config.smoothing), rule=config.rule)
-        self._face_id, self._model = face.content_id, model
+        self._face_id = model.content_id
+        self._model = face.data if face is not None and config.embed_face else b""
         self._basis: np.ndarray | None = None
         self.sealer = None if config.key is None else SecureSealer(config.key, config.tag_bits)
         self._configure(config.quality)

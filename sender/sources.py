@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from common.errors import InputError
+from facedeform.common.errors import InputError
 
 # FFmpeg inside OpenCV would print its own complaints about a bad file; ours is one line.
 os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")

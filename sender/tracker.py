@@ -9,8 +9,8 @@ crop, so that it agrees with the frames after it.
 
 import numpy as np
 
-from sender.detector import FaceDetector
-from sender.landmarks import LandmarkModel, Roi
+from facedeform.sender.detector import FaceDetector
+from facedeform.sender.landmarks import LandmarkModel, Roi
 
 #: Landmarks at the outer corners of the person's right and left eye: they level the crop.
 RIGHT_EYE_CORNER, LEFT_EYE_CORNER = 33, 263

@@ -10,8 +10,8 @@ import sys
 import time
 from urllib.parse import urlsplit
 
-from common.errors import InputError
-from protocol.stream import frame_bytes
+from facedeform.common.errors import InputError
+from facedeform.protocol.stream import frame_bytes
 
 CONNECT_TIMEOUT = 5.0  # seconds for one attempt to connect
 CONNECT_WAIT = 5.0  # seconds a TCP sender keeps trying while no receiver listens yet

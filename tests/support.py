@@ -15,17 +15,17 @@ import cv2
 import numpy as np
 import pytest
 
-from codec.deform import PAPER_PARAMS
-from codec.face_file import personal_face, save_face_file
-from codec.face_model import ReferencePicture, load_base_face, mouth_vertices
-from codec.picture import Placement
-from protocol.stream import Header, PacketEncoder, StreamDecoder, StreamEncoder, steps_for
-from receiver.cli import main
+from facedeform.codec.deform import PAPER_PARAMS
+from facedeform.codec.face_file import personal_face, save_face_file
+from facedeform.codec.face_model import ReferencePicture, load_base_face, mouth_vertices
+from facedeform.codec.picture import Placement
+from facedeform.protocol.stream import Header, PacketEncoder, StreamDecoder, StreamEncoder, steps_for
+from facedeform.receiver.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
-SEND = [sys.executable, "-m", "sender.cli"]
-RECV = [sys.executable, "-m", "receiver.cli"]
+SEND = [sys.executable, "-m", "facedeform.sender.cli"]
+RECV = [sys.executable, "-m", "facedeform.receiver.cli"]
 
 
 def run(args, stdin=None, **kw):

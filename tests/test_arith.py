@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from protocol.arith import AdaptiveBit, Decoder, Encoder, Incomplete
+from facedeform.protocol.arith import AdaptiveBit, Decoder, Encoder, Incomplete
 
 
 def code(bits: list[int], models: list[int], first_byte_below: int = 256) -> Encoder:

@@ -4,11 +4,11 @@
 import numpy as np
 import pytest
 
-from common.errors import BitstreamError
-from protocol.basis import MIN_MOTION, SCALE, principal_basis
-from protocol.framing import HEADER, build
-from protocol.header import encode_header, parse_header
-from protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, steps_for
+from facedeform.common.errors import BitstreamError
+from facedeform.protocol.basis import MIN_MOTION, SCALE, principal_basis
+from facedeform.protocol.framing import HEADER, build
+from facedeform.protocol.header import encode_header, parse_header
+from facedeform.protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, steps_for
 
 NAMES = ("theta", "v3x", "v3y", "v3z", "v8x", "v8y", "rx", "ry")
 POSE = [n in ("rx", "ry") for n in NAMES]

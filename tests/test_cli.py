@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from protocol.quantise import DEAD_ZONE
-from sender.calibrate import lip_gap
+from facedeform.protocol.quantise import DEAD_ZONE
+from facedeform.sender.calibrate import lip_gap
 from tests.support import CLIP, RECV, ROOT, SEND, assert_one_line_error, clip_frames, coded_error, parse_y4m, run
 
 
@@ -30,7 +30,7 @@ def test_pipe_gives_one_frame_per_input_frame_at_its_rate(tmp_path):
 
 
 def test_sender_dump_has_landmarks_pose_and_params(sent):
-    from sender.analysis import LAYOUTS
+    from facedeform.sender.analysis import LAYOUTS
 
     _, dump = sent
     n = clip_frames()
@@ -96,7 +96,7 @@ def test_y4m_on_stdout(sent):
 
 
 def test_truncated_stream_keeps_the_good_frames(sent, tmp_path):
-    from protocol.framing import packet_size
+    from facedeform.protocol.framing import packet_size
 
     stream, _ = sent
     header = 1 + packet_size(stream, 1)  # sync byte and header packet
@@ -162,7 +162,7 @@ def test_bad_arguments_are_one_line(args, prog):
 @pytest.fixture(scope="module")
 def face_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("face") / "me.fdface"
-    result = run([sys.executable, "-m", "sender.enroll", str(CLIP), "-o", str(path), "-q"])
+    result = run([sys.executable, "-m", "facedeform.sender.enroll", str(CLIP), "-o", str(path), "-q"])
     assert result.returncode == 0, result.stderr.decode()
     return path
 
@@ -198,8 +198,8 @@ def test_face_by_id_without_a_face_is_refused():
 
 
 def test_every_layout_is_offered_by_the_cli():
-    from sender.analysis import LAYOUT_NAMES
-    from sender.cli import parse_args
+    from facedeform.sender.analysis import LAYOUT_NAMES
+    from facedeform.sender.cli import parse_args
 
     for layout in LAYOUT_NAMES:
         assert parse_args(["clip.mp4", "--params", layout]).params == layout

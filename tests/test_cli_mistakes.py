@@ -6,7 +6,7 @@ import pytest
 
 from tests.support import CLIP, RECV, ROOT, SEND, assert_one_line_error, run
 
-ANIMATE = [sys.executable, "-m", "receiver.animate"]
+ANIMATE = [sys.executable, "-m", "facedeform.receiver.animate"]
 SCRIPT = str(ROOT / "samples" / "animation.txt")
 
 
@@ -63,15 +63,15 @@ def test_receive_outputs_are_checked_before_the_work(stream_file, tmp_path, args
 
 
 def test_experiment_output_folder_that_cannot_be_made_is_one_line():
-    result = run([sys.executable, "-m", "experiment.cli", str(CLIP), "--out", "/proc/no-such-folder"])
+    result = run([sys.executable, "-m", "facedeform.experiment.cli", str(CLIP), "--out", "/proc/no-such-folder"])
     assert_one_line_error(result, "fd-experiment")
     assert "cannot make the folder" in result.stderr.decode()
 
 
 @pytest.mark.parametrize("tool, args", [
-    ("sender.enroll", [str(CLIP), "-o", "{tmp}/f.fdface", "--seconds", "nan"]),
-    ("sender.enroll", [str(CLIP), "-o", "{tmp}/f.fdface", "--motion-seconds", "-1"]),
-    ("receiver.cli", ["--listen", "udp://127.0.0.1:0", "--timeout", "inf"]),
+    ("facedeform.sender.enroll", [str(CLIP), "-o", "{tmp}/f.fdface", "--seconds", "nan"]),
+    ("facedeform.sender.enroll", [str(CLIP), "-o", "{tmp}/f.fdface", "--motion-seconds", "-1"]),
+    ("facedeform.receiver.cli", ["--listen", "udp://127.0.0.1:0", "--timeout", "inf"]),
 ])
 def test_durations_that_are_not_finite_and_positive_are_refused(tool, args, tmp_path):
     result = run([sys.executable, "-m", tool, *[a.format(tmp=tmp_path) for a in args]])

@@ -10,10 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
-from codec.deform import PAPER_PARAMS, PRESETS, Deformer, extended_params
-from codec.face_model import content_id, load_base_face
-from codec.regions import FEATURE_NAMES, RULES, project_weights, round_lower_lip
-from common.errors import InputError
+from facedeform.codec.deform import PAPER_PARAMS, PRESETS, Deformer, extended_params
+from facedeform.codec.face_model import content_id, load_base_face
+from facedeform.codec.regions import FEATURE_NAMES, RULES, project_weights, round_lower_lip
+from facedeform.common.errors import InputError
 
 FACE = load_base_face()
 DEF = Deformer(FACE)

@@ -10,12 +10,12 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial.transform import Rotation
 
-from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, PRESETS, Deformer, extended_params
-from codec.face_model import load_base_face
-from codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
-from codec.regions import RULES
-from common.errors import InputError
-from sender.analysis import LAYOUTS
+from facedeform.codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, PRESETS, Deformer, extended_params
+from facedeform.codec.face_model import load_base_face
+from facedeform.codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
+from facedeform.codec.regions import RULES
+from facedeform.common.errors import InputError
+from facedeform.sender.analysis import LAYOUTS
 
 FACE = load_base_face()
 X = FACE.vertices

@@ -5,10 +5,10 @@ import cv2
 import numpy as np
 import pytest
 
-from codec.face_file import face_id, load_face_file
-from codec.face_model import load_base_face
-from codec.picture import face_texture
-from sender.enroll import main
+from facedeform.codec.face_file import Face, face_id
+from facedeform.codec.face_model import load_base_face
+from facedeform.codec.picture import face_texture
+from facedeform.sender.enroll import main
 from tests.support import CLIP
 
 
@@ -23,7 +23,7 @@ def test_enrolment_writes_a_personal_textured_model(tmp_path, capsys, choice):
     out = tmp_path / "me.fdface"
     assert main([str(CLIP), "-o", str(out), *choice]) == 0
     printed = capsys.readouterr().out.strip()
-    face = load_face_file(out)
+    face = Face.load(out).model
     assert printed == face.content_id == face_id(out.read_bytes())
     generic = load_base_face()
     assert np.abs(face.vertices - generic.vertices).max() > 0.01
@@ -39,16 +39,16 @@ def test_enrolment_writes_a_personal_textured_model(tmp_path, capsys, choice):
 
 
 def test_the_reference_picture_is_the_frame_with_the_face_placed_in_it(tmp_path, capsys):
-    from sender.tracker import FaceTracker
+    from facedeform.sender.tracker import FaceTracker
 
     out = tmp_path / "me.fdface"
     assert main([str(CLIP), "-o", str(out), "--frame", "3", "--motion", "0"]) == 0
     assert "reference picture 360x288" in capsys.readouterr().err
-    face = load_face_file(out)
-    capture = cv2.VideoCapture(str(CLIP))
-    for _ in range(4):
+    face = Face.load(out).model
+    capture, tracker = cv2.VideoCapture(str(CLIP)), FaceTracker()
+    for _ in range(4):  # tracked from the first frame on, as enrolment tracks the clip
         ok, frame = capture.read()
-    landmarks = FaceTracker().track(frame)
+        landmarks = tracker.track(frame)
     picture = face.picture.image
     assert picture.shape == frame.shape
     assert np.abs(picture.astype(float) - cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)).mean() < 3  # WebP-coded
@@ -60,7 +60,7 @@ def test_no_picture_leaves_it_out(tmp_path, capsys):
     out = tmp_path / "me.fdface"
     assert main([str(CLIP), "-o", str(out), "--motion", "0", "--no-picture"]) == 0
     assert "no reference picture" in capsys.readouterr().err
-    face = load_face_file(out)
+    face = Face.load(out).model
     assert face.picture is None and face.texture is not None
 
 
@@ -96,7 +96,7 @@ def test_no_face(tmp_path, capsys):
 
 def test_frame_beyond_the_clip(tmp_path, capsys):
     code = main([str(CLIP), "--frame", "100000", "-o", str(tmp_path / "x.fdface")])
-    assert "--frame 100000" in one_line_error(capsys, code)
+    assert "frame 100000: the clip has only" in one_line_error(capsys, code)
 
 
 def test_unknown_option(capsys):

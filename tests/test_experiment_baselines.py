@@ -4,9 +4,9 @@ closer picture, and a missing encoder or a decoder that drops frames is refused 
 import numpy as np
 import pytest
 
-from common.errors import FdError, InputError
-from experiment import baselines
-from experiment.baselines import CODECS, encode_decode, ladder
+from facedeform.common.errors import FdError, InputError
+from facedeform.experiment import baselines
+from facedeform.experiment.baselines import CODECS, encode_decode, ladder
 
 
 def moving_clip(n=12, size=64):

@@ -11,10 +11,10 @@ import time
 import numpy as np
 import pytest
 
-from common.errors import FdError
-from experiment import cli
-from experiment.cli import _clip, main
-from protocol.framing import packet_size
+from facedeform.common.errors import FdError
+from facedeform.experiment import cli
+from facedeform.experiment.cli import _clip, main
+from facedeform.protocol.framing import packet_size
 from tests.support import CLIP
 
 ARGS = ["--seconds", "2", "--sizes", "128", "--qualities", "3", "--baselines", "x264", "--rungs", "3", "-q"]
@@ -64,7 +64,7 @@ def test_every_measure_is_present_and_in_range(results):
 
 @pytest.mark.slow
 def test_the_same_video_measures_as_identical(results):
-    from experiment.runs import measure
+    from facedeform.experiment.runs import measure
 
     out, rows = results
     clip = _clip("grid_bbaf2n", str(out / "work" / "grid_bbaf2n_128.mkv"), rows[0]["fps"])
@@ -98,7 +98,7 @@ def test_baseline_rates_are_their_stream_files(results):
 
 @pytest.mark.slow
 def test_the_crop_is_lossless_and_follows_the_rule(results):
-    from experiment.clips import read_video
+    from facedeform.experiment.clips import read_video
 
     out, _ = results
     info = json.loads((out / "work" / "grid_bbaf2n_128.json").read_text())
@@ -151,7 +151,7 @@ def test_a_dask_cluster_gives_the_same_rows(results, tmp_path):
 
 
 def test_missing_baseline_encoder_is_a_one_line_error(tmp_path, capsys, monkeypatch):
-    from experiment import baselines
+    from facedeform.experiment import baselines
 
     listed = baselines._listed("encoders")
     monkeypatch.setattr(baselines, "_listed", lambda kind: listed.replace(" libsvtav1 ", " gone "))
@@ -167,7 +167,7 @@ def test_missing_clip_is_a_one_line_error(tmp_path, capsys):
 
 
 def test_crop_box_rule():
-    from experiment.clips import crop_box
+    from facedeform.experiment.clips import crop_box
 
     lm = np.full((3, 468, 3), np.nan)
     lm[0, :, :2] = np.linspace([200, 100], [260, 180], 468)  # 60 wide, 80 high
@@ -182,8 +182,8 @@ def test_crop_box_rule():
 def test_the_lossless_crop_reads_back_bit_for_bit_through_opencv_too(tmp_path):
     import cv2
 
-    from experiment.clips import read_video, write_lossless
-    from sender.sources import VideoSource
+    from facedeform.experiment.clips import read_video, write_lossless
+    from facedeform.sender.sources import VideoSource
 
     rng = np.random.default_rng(0)
     frames = [rng.integers(0, 256, (32, 32, 3), dtype=np.uint8) for _ in range(4)]

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from experiment.metrics import MOUTH, akd, ms_ssim, opening_correlation, psnr, psnr_rgb, ssim, vmaf
-from sender.calibrate import lip_gap
+from facedeform.experiment.metrics import MOUTH, akd, ms_ssim, opening_correlation, psnr, psnr_rgb, ssim, vmaf
+from facedeform.sender.calibrate import lip_gap
 
 
 def track(t=10, seed=0):
@@ -66,7 +66,7 @@ def test_psnr_and_ssim_inside_the_mask():
 
 
 def test_alignment_removes_a_similarity_but_not_a_change_of_shape():
-    from experiment.metrics import aligned
+    from facedeform.experiment.metrics import aligned
 
     ref = track()
     angle, scale, shift = 0.3, 1.7, np.array([40.0, -25.0])
@@ -80,8 +80,8 @@ def test_alignment_removes_a_similarity_but_not_a_change_of_shape():
 
 def face_track(t=12, scale=200.0, opening=0.03):
     """(t, 468, 3) pixel landmarks of the base face whose jaw line and lower lip drop over time."""
-    from codec.face_model import load_base_face
-    from sender.fidelity import MOUTH_JAW_LANDMARKS
+    from facedeform.codec.face_model import load_base_face
+    from facedeform.sender.fidelity import MOUTH_JAW_LANDMARKS
 
     v = load_base_face().vertices
     frames = np.repeat(v[None], t, axis=0)
@@ -93,7 +93,7 @@ def face_track(t=12, scale=200.0, opening=0.03):
 def test_motion_fidelity_is_zero_for_the_same_motion_whatever_the_pose_and_one_for_a_frozen_face():
     from scipy.spatial.transform import Rotation
 
-    from experiment.metrics import motion_fidelity
+    from facedeform.experiment.metrics import motion_fidelity
 
     ref = face_track()
     assert motion_fidelity(ref, ref, 25) == pytest.approx(0, abs=1e-9)
@@ -147,7 +147,7 @@ def test_vmaf_is_near_100_for_the_same_video_and_falls_with_noise():
 
 
 def test_the_similarity_fits_the_decoded_keypoints_onto_the_reference():
-    from experiment.metrics import similarities
+    from facedeform.experiment.metrics import similarities
 
     ref = track(t=2)
     dec = ref * 0.5 + [20, 10]  # drawn at half size, elsewhere

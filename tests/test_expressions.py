@@ -8,11 +8,18 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from codec.deform import EXTENDED_PARAMS, Deformer
-from codec.expressions import AU_FILE, EXPRESSION_FILE, au_params, default_tables, expression_params, load_tables
-from codec.face_model import load_base_face
-from common.errors import InputError
-from receiver.animate import interpolate, main
+from facedeform.codec.deform import EXTENDED_PARAMS, Deformer
+from facedeform.codec.expressions import (
+    AU_FILE,
+    EXPRESSION_FILE,
+    au_params,
+    default_tables,
+    expression_params,
+    load_tables,
+)
+from facedeform.codec.face_model import load_base_face
+from facedeform.common.errors import InputError
+from facedeform.receiver.animate import interpolate, main
 
 FACE = load_base_face()
 DEF = Deformer(FACE)

@@ -7,10 +7,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from codec.deform import PAPER_PARAMS, Deformer
-from codec.face_file import decode_face, encode_face, load_face_file, personal_face, save_face_file
-from codec.picture import Placement
-from common.errors import InputError
+from facedeform.codec.deform import PAPER_PARAMS, Deformer
+from facedeform.codec.face_file import Face, decode_face, encode_face, personal_face, save_face_file
+from facedeform.codec.picture import Placement
+from facedeform.common.errors import InputError
 from tests.support import BASE, a_person, a_picture, a_picture_with_a_mouth, as_version, with_info
 
 GENERIC_ID = "29d964b2735ca5b817cf688586b0cdcbe7dae01b01573aa45c8ce855b3d3a966"
@@ -25,7 +25,7 @@ def test_round_trip_keeps_mesh_texture_and_features(tmp_path):
     neutral, texture = a_person()
     data = personal_face(neutral, texture)
     ident = save_face_file(data, tmp_path / "p.fdface")
-    face = load_face_file(tmp_path / "p.fdface")
+    face = Face.load(tmp_path / "p.fdface").model
     assert face.content_id == ident == hashlib.sha256(data).hexdigest()
     assert face.texture.shape == (64, 64, 3) and face.texture.dtype == np.uint8
     assert np.abs(face.texture.astype(int) - texture).mean() < 3  # JPEG: close, not exact
@@ -80,15 +80,15 @@ def test_bad_files_are_refused_in_one_line(tmp_path, mangle, message):
     path = tmp_path / "bad.fdface"
     path.write_bytes(mangle(personal_face(neutral, texture)))
     with pytest.raises(InputError, match=message) as info:
-        load_face_file(path)
+        Face.load(path)
     assert str(path) in str(info.value) and "\n" not in str(info.value)
 
 
 def test_missing_file_and_directory_are_refused(tmp_path):
     with pytest.raises(InputError, match="cannot read"):
-        load_face_file(tmp_path / "nothing.fdface")
+        Face.load(tmp_path / "nothing.fdface")
     with pytest.raises(InputError, match="not a file"):
-        load_face_file(tmp_path)
+        Face.load(tmp_path)
 
 
 def test_the_reference_picture_round_trips():
@@ -104,7 +104,7 @@ def test_the_reference_picture_round_trips():
 
 
 def test_files_of_older_versions_are_still_read():
-    from codec.motion_basis import MotionBasis
+    from facedeform.codec.motion_basis import MotionBasis
 
     neutral, texture = a_person()
     motion = MotionBasis(np.array([100, 101, 102]), np.random.default_rng(3).normal(0, 0.1, (2, 3, 3)))
@@ -124,7 +124,7 @@ def test_files_of_older_versions_are_still_read():
 
 
 def test_a_picture_replaces_the_texture_and_the_generic_features_take_no_bytes():
-    from codec.picture import face_texture
+    from facedeform.codec.picture import face_texture
 
     neutral, texture = a_person()
     with_texture = personal_face(neutral, texture, picture=a_picture())

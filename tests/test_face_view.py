@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from codec.deform import PAPER_PARAMS
-from codec.face_model import load_base_face
-from common.errors import BitstreamError
-from protocol.stream import Header, steps_for
-from receiver.face_view import FaceView
+from facedeform.codec.deform import PAPER_PARAMS
+from facedeform.codec.face_model import load_base_face
+from facedeform.common.errors import BitstreamError
+from facedeform.protocol.stream import Header, steps_for
+from facedeform.receiver.face_view import FaceView
 
 FACE = load_base_face()
 SIZE = (96, 96)

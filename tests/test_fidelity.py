@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
-from codec.face_model import load_base_face
-from sender.calibrate import inter_ocular
-from sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity
+from facedeform.codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
+from facedeform.codec.face_model import load_base_face
+from facedeform.sender.calibrate import inter_ocular
+from facedeform.sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity
 
 
 @pytest.fixture(scope="module")

@@ -15,8 +15,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from codec.face_file import decode_face, encode_face, personal_face
-from common.errors import FdError
+from facedeform.codec.face_file import decode_face, encode_face, personal_face
+from facedeform.common.errors import FdError
 from tests.support import a_person, a_picture_with_a_mouth, with_info
 
 DEADLINE = 2.0  # seconds for any one file: a hostile file must not make the reader work long

@@ -8,11 +8,11 @@ import time
 import numpy as np
 import pytest
 
-from common.errors import InputError
-from protocol.secure import SecureSealer
-from protocol.secure_stream import SecureDatagramDecoder
-from protocol.stream import DatagramDecoder, Datagrams, Frame, Header, PacketEncoder
-from sender.transport import open_sink
+from facedeform.common.errors import InputError
+from facedeform.protocol.secure import SecureSealer
+from facedeform.protocol.secure_stream import SecureDatagramDecoder
+from facedeform.protocol.stream import DatagramDecoder, Datagrams, Frame, Header, PacketEncoder
+from facedeform.sender.transport import open_sink
 from tests.support import KEY, N, finish, header, parse_y4m, smooth_tracks, start_listener
 
 RNG_SEEDS = range(5)
@@ -209,7 +209,7 @@ def test_a_tcp_sender_waits_for_the_receiver(monkeypatch):
     sink.close()
     listener.join(30)
     assert got == [b"\xfdhello"]
-    monkeypatch.setattr("sender.transport.CONNECT_WAIT", 0.3)
+    monkeypatch.setattr("facedeform.sender.transport.CONNECT_WAIT", 0.3)
     with pytest.raises(InputError, match="nobody is listening"):
         open_sink(f"tcp://127.0.0.1:{port}")
 

@@ -9,14 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import sender.tracker
-from codec.face_model import load_base_face
-from receiver.session import ReceiveSession
-from receiver.transport import open_file
-from sender.analysis import FaceAnalyser, Smoothing
-from sender.config import SendConfig
-from sender.session import SendSession, read_dump
-from sender.sources import LoopedSource, PacedSource, VideoSource
+import facedeform.sender.tracker
+from facedeform.codec.face_model import load_base_face
+from facedeform.receiver.session import ReceiveSession
+from facedeform.receiver.transport import open_file
+from facedeform.sender.analysis import FaceAnalyser, Smoothing
+from facedeform.sender.config import SendConfig
+from facedeform.sender.session import SendSession, read_dump
+from facedeform.sender.sources import LoopedSource, PacedSource, VideoSource
 from tests.support import ROOT
 
 FPS = 25.0
@@ -55,7 +55,7 @@ class Replay:
 
 @pytest.fixture
 def replayed(monkeypatch):
-    monkeypatch.setattr(sender.tracker, "FaceTracker", Replay)
+    monkeypatch.setattr(facedeform.sender.tracker, "FaceTracker", Replay)
 
 
 def send(n: int, dump=None) -> tuple[SendSession, int]:

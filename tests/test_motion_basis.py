@@ -7,14 +7,14 @@ import sys
 import numpy as np
 import pytest
 
-from codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
-from codec.face_file import decode_face, encode_face, load_face_file
-from codec.face_model import load_base_face
-from codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS, MotionBasis, learn_basis
-from common.errors import InputError
-from protocol.quantise import DEAD_ZONE
-from sender.fit import ModelFit
-from sender.motion import FRAMES_PER_PATTERN, learn_motion
+from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
+from facedeform.codec.face_file import Face, decode_face, encode_face
+from facedeform.codec.face_model import load_base_face
+from facedeform.codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS, MotionBasis, learn_basis
+from facedeform.common.errors import InputError
+from facedeform.protocol.quantise import DEAD_ZONE
+from facedeform.sender.fit import ModelFit
+from facedeform.sender.motion import FRAMES_PER_PATTERN, learn_motion
 from tests.support import CLIP, ROOT, as_version, coded_error
 
 RNG = np.random.default_rng(7)
@@ -121,17 +121,17 @@ def _run(cmd):
 @pytest.mark.parametrize("over", ["rest", "paper"])
 def test_enrol_then_send_the_personal_layout_end_to_end(tmp_path, over):
     face = tmp_path / "me.fdface"
-    enrolled = _run(["sender.enroll", str(CLIP), "-o", str(face), "--motion", "4", "--motion-over", over])
+    enrolled = _run(["facedeform.sender.enroll", str(CLIP), "-o", str(face), "--motion", "4", "--motion-over", over])
     assert enrolled.returncode == 0, enrolled.stderr.decode()
     assert f"motion basis of 4 patterns over the {over}" in enrolled.stderr.decode()
-    model = load_face_file(face)
+    model = Face.load(face).model
     assert (model.motion.components, model.motion.over) == (4, over)
     stream = tmp_path / "s.fd"
     params = ["--params", "personal"] if over == "paper" else []  # the default for a face with a basis
-    sent = _run(["sender.cli", str(CLIP), "--face", str(face), *params, "-o", str(stream),
+    sent = _run(["facedeform.sender.cli", str(CLIP), "--face", str(face), *params, "-o", str(stream),
                  "--dump", str(tmp_path / "sent.npz"), "-q"])
     assert sent.returncode == 0, sent.stderr.decode()
-    got = _run(["receiver.cli", str(stream), "-o", str(tmp_path / "out.y4m"), "--size", "64",
+    got = _run(["facedeform.receiver.cli", str(stream), "-o", str(tmp_path / "out.y4m"), "--size", "64",
                 "--dump", str(tmp_path / "recv.npz"), "-q"])
     assert got.returncode == 0, got.stderr.decode()
     recv = np.load(tmp_path / "recv.npz")
@@ -155,12 +155,12 @@ def test_a_short_clip_gets_as_many_patterns_as_its_frames_teach():
 
 def test_a_clip_too_short_for_one_pattern_gives_a_face_without_a_basis_and_personal_then_refuses(tmp_path):
     face = tmp_path / "me.fdface"
-    enrolled = _run(["sender.enroll", str(CLIP), "-o", str(face), "--motion", "8", "--frame", "0",
+    enrolled = _run(["facedeform.sender.enroll", str(CLIP), "-o", str(face), "--motion", "8", "--frame", "0",
                      "--motion-seconds", "0.1"])
     assert enrolled.returncode == 0, enrolled.stderr.decode()
     assert "no motion basis" in enrolled.stderr.decode()
-    assert load_face_file(face).motion is None
-    sent = _run(["sender.cli", str(CLIP), "--face", str(face), "--params", "personal", "-o", "/dev/null"])
+    assert Face.load(face).model.motion is None
+    sent = _run(["facedeform.sender.cli", str(CLIP), "--face", str(face), "--params", "personal", "-o", "/dev/null"])
     err = sent.stderr.decode()
     assert sent.returncode != 0 and err.startswith("fd-send: ") and err.count("\n") == 1, err
     assert "motion basis" in err

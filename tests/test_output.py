@@ -8,8 +8,8 @@ import av
 import numpy as np
 import pytest
 
-from common.errors import InputError
-from receiver.output import open_writer
+from facedeform.common.errors import InputError
+from facedeform.receiver.output import open_writer
 from tests.support import parse_y4m
 
 
@@ -66,7 +66,7 @@ def test_unwritable_output_is_refused(tmp_path):
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="elsewhere a GUI build may open a window")
 def test_show_is_refused_without_a_gui_backend_or_display(monkeypatch):
-    from receiver.output import Display
+    from facedeform.receiver.output import Display
 
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)

@@ -7,11 +7,11 @@ import cv2
 import numpy as np
 import pytest
 
-from codec.camera import Camera
-from codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, Deformer
-from codec.face_file import decode_face, encode_face, load_face_file, save_face_file
-from codec.face_model import ReferencePicture, load_base_face, mouth_vertices
-from codec.picture import (
+from facedeform.codec.camera import Camera
+from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, Deformer
+from facedeform.codec.face_file import Face, decode_face, encode_face, save_face_file
+from facedeform.codec.face_model import ReferencePicture, load_base_face, mouth_vertices
+from facedeform.codec.picture import (
     RINGS,
     Placement,
     SceneMesh,
@@ -22,13 +22,13 @@ from codec.picture import (
     outer_loop,
     relative_pose,
 )
-from codec.render import Renderer
-from codec.texture import texture_from_frame
-from common.errors import InputError
-from protocol.stream import Header, steps_for
-from receiver.face_view import FaceView, PictureView, default_look, open_view
-from sender.motion_global import GlobalMotion, RingWeights
-from sender.tracker import FaceTracker
+from facedeform.codec.render import Renderer
+from facedeform.codec.texture import texture_from_frame
+from facedeform.common.errors import InputError
+from facedeform.protocol.stream import Header, steps_for
+from facedeform.receiver.face_view import FaceView, PictureView, default_look, open_view
+from facedeform.sender.motion_global import GlobalMotion, RingWeights
+from facedeform.sender.tracker import FaceTracker
 from tests.support import ROOT
 
 GRID = ROOT / "samples" / "grid_bbaf2n.mpg"
@@ -209,11 +209,11 @@ def scene_frames():
 def scene(tmp_path_factory):
     """(input RGB frames, the decoded RGB frames, the receiver's face, the stream's path, the face file's
     path) through fd-enroll, fd-send and fd-recv's sessions."""
-    from receiver.session import ReceiveSession
-    from receiver.transport import open_file
-    from sender.config import SendConfig
-    from sender.enroll import main as enroll
-    from sender.session import SendSession
+    from facedeform.receiver.session import ReceiveSession
+    from facedeform.receiver.transport import open_file
+    from facedeform.sender.config import SendConfig
+    from facedeform.sender.enroll import main as enroll
+    from facedeform.sender.session import SendSession
 
     tmp = tmp_path_factory.mktemp("scene")
     frames, _ = scene_frames()
@@ -221,14 +221,14 @@ def scene(tmp_path_factory):
         cv2.imwrite(str(tmp / f"{i:03d}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     path = tmp / "scene.fdface"
     assert enroll([str(tmp / "%03d.png"), "-o", str(path), "--frame", "0", "--motion", "0", "-q"]) == 0
-    enrolled = load_face_file(path)
+    enrolled = Face.load(path).model
     # the same picture stored losslessly, so that the still background can be compared bit for bit
     lossless = replace(enrolled, picture=ReferencePicture(frames[0], enrolled.picture.projection))
     save_face_file(encode_face(lossless, picture_format=".png"), path)
-    face = load_face_file(path)
+    face = Face.load(path).model
     stream = tmp / "scene.fd"
-    send = SendSession(str(tmp / "%03d.png"), SendConfig(layout="paper", neutral=0, smoothing=0.0,
-                                                          face_file=str(path)))
+    send = SendSession(str(tmp / "%03d.png"), SendConfig(layout="paper", neutral=0, smoothing=0.0),
+                       face=Face.load(path))
     stream.write_bytes(b"".join(send.stream()))
     decoded, sizes = [], []
 
@@ -288,8 +288,8 @@ def test_the_face_follows_within_a_stated_error(scene):
 
 @pytest.mark.parametrize("look", ["picture", "face", "shaded", None])
 def test_every_look_draws_every_frame_at_the_source_size(scene, tmp_path, look):
-    from experiment.clips import read_y4m
-    from receiver.cli import main
+    from facedeform.experiment.clips import read_y4m
+    from facedeform.receiver.cli import main
 
     frames, _, _, stream, path = scene
     out = tmp_path / "out.y4m"
@@ -302,7 +302,7 @@ def test_every_look_draws_every_frame_at_the_source_size(scene, tmp_path, look):
 
 
 def test_a_bad_look_is_one_line(capsys):
-    from receiver.cli import main
+    from facedeform.receiver.cli import main
 
     with pytest.raises(SystemExit) as info:
         main(["--look", "cartoon"])
@@ -311,8 +311,8 @@ def test_a_bad_look_is_one_line(capsys):
 
 
 def test_the_picture_look_without_a_picture_is_one_line(scene, tmp_path, capsys):
-    from codec.face_file import read_face_bytes
-    from receiver.cli import main
+    from facedeform.codec.face_file import read_face_bytes
+    from facedeform.receiver.cli import main
 
     _, _, face, stream, path = scene
     bare = tmp_path / "bare.fdface"
@@ -395,7 +395,7 @@ def test_the_sender_measures_a_known_global_motion():
 
 
 def test_a_plain_background_carries_no_global_motion():
-    from sender.analysis import picture_names
+    from facedeform.sender.analysis import picture_names
 
     face = a_textured_scene()
     assert GlobalMotion(face.picture, face.vertices).usable

@@ -3,7 +3,7 @@
 import cv2
 import numpy as np
 
-from sender.pose import fit_pose, image_to_face_axes
+from facedeform.sender.pose import fit_pose, image_to_face_axes
 
 
 def test_fit_recovers_a_similarity():

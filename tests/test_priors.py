@@ -10,13 +10,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from codec.face_model import load_base_face
-from protocol import priors
-from protocol.entropy import GroupState
-from protocol.quantise import QUALITIES
-from protocol.stream import Frame, Header, StreamDecoder, StreamEncoder, steps_for
-from receiver import cli as receiver_cli
-from sender.analysis import LAYOUTS
+from facedeform.codec.face_model import load_base_face
+from facedeform.protocol import priors
+from facedeform.protocol.entropy import GroupState
+from facedeform.protocol.quantise import QUALITIES
+from facedeform.protocol.stream import Frame, Header, StreamDecoder, StreamEncoder, steps_for
+from facedeform.receiver import cli as receiver_cli
+from facedeform.sender.analysis import LAYOUTS
 from tests.support import ROOT
 
 NAMES = ("theta", "v2x", "v2y", "v2z", "v3x", "v3y", "v3z", "v8x", "v8y", "v8z", "v9x", "v9y", "v9z")

@@ -2,7 +2,7 @@
 
 import io
 
-from common.progress import Progress, progress_for
+from facedeform.common.progress import Progress, progress_for
 
 
 class Terminal(io.StringIO):

@@ -9,13 +9,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from codec.deform import PAPER_PARAMS
-from common.errors import BitstreamError, FdError
-from protocol.basis import SCALE
-from protocol.framing import END, HEADER, SYNC, Delta, build, varint
-from protocol.header import MAX_MODEL, MAX_SIZE, VERSION, encode_header, parse_header
-from protocol.quantise import QUALITIES, dequantise, hold_or_round, quantise
-from protocol.stream import (
+from facedeform.codec.deform import PAPER_PARAMS
+from facedeform.common.errors import BitstreamError, FdError
+from facedeform.protocol.basis import SCALE
+from facedeform.protocol.framing import END, HEADER, SYNC, Delta, build, varint
+from facedeform.protocol.header import MAX_MODEL, MAX_SIZE, VERSION, encode_header, parse_header
+from facedeform.protocol.quantise import QUALITIES, dequantise, hold_or_round, quantise
+from facedeform.protocol.stream import (
     Damage,
     DatagramDecoder,
     End,
@@ -386,7 +386,7 @@ def test_delta_from_another_position_is_rejected():
 
 
 def test_bitrate_choice_is_the_finest_level_that_codes_the_sample_within_the_target():
-    from protocol.rate import quality_for_bitrate, sample_bits_per_second
+    from facedeform.protocol.rate import quality_for_bitrate, sample_bits_per_second
 
     sample = [(p, True) for p in walk(25, len(PAPER_PARAMS), seed=3)]  # a second of lively talking
     rates = {q: sample_bits_per_second(header(quality=q), sample, 2, 1.0) for q in QUALITIES}
@@ -403,8 +403,8 @@ def test_bitrate_choice_is_the_finest_level_that_codes_the_sample_within_the_tar
 def test_bitrate_estimate_is_what_the_stream_takes(sealed, divisor):
     """The estimate behind --bitrate counts every byte the call's stream carries per second: with
     --key the counter, tag and sync byte of each packet, with --send-every only the frames sent."""
-    from protocol.rate import sample_bits_per_second
-    from protocol.secure import SecureSealer
+    from facedeform.protocol.rate import sample_bits_per_second
+    from facedeform.protocol.secure import SecureSealer
 
     h = header(divisor=divisor, key_interval=25 // divisor, skip_static=True)
     sample = [(p, True) for p in walk(25, len(PAPER_PARAMS), seed=4)]

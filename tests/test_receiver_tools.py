@@ -10,8 +10,8 @@ import sys
 import numpy as np
 import pytest
 
-from codec.face_file import decode_face
-from protocol.stream import PacketEncoder, frame_bytes
+from facedeform.codec.face_file import decode_face
+from facedeform.protocol.stream import PacketEncoder, frame_bytes
 from tests.support import (
     DEADLINE,
     GENERIC,

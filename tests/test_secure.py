@@ -7,15 +7,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from codec.deform import PAPER_PARAMS, POSE_PARAMS
-from codec.upper_face import UPPER_PARAMS
-from common.errors import BitstreamError, FdError, InputError
-from common.keys import key_id, parse_key
-from protocol.decoder import PacketDecoder
-from protocol.framing import varint
-from protocol.secure import SecureOpener, SecureSealer, preamble_size
-from protocol.secure_stream import SecureDatagramDecoder, SecureStreamDecoder, seal_stream
-from protocol.stream import DatagramDecoder, Frame, Header, Model, PacketEncoder, frame_bytes, steps_for
+from facedeform.codec.deform import PAPER_PARAMS, POSE_PARAMS
+from facedeform.codec.upper_face import UPPER_PARAMS
+from facedeform.common.errors import BitstreamError, FdError, InputError
+from facedeform.common.keys import key_id, parse_key
+from facedeform.protocol.decoder import PacketDecoder
+from facedeform.protocol.framing import varint
+from facedeform.protocol.secure import SecureOpener, SecureSealer, preamble_size
+from facedeform.protocol.secure_stream import SecureDatagramDecoder, SecureStreamDecoder, seal_stream
+from facedeform.protocol.stream import DatagramDecoder, Frame, Header, Model, PacketEncoder, frame_bytes, steps_for
 
 KEY = bytes(range(32))
 LAYOUTS = {"paper": PAPER_PARAMS + POSE_PARAMS[:3], "full": PAPER_PARAMS + UPPER_PARAMS + POSE_PARAMS}

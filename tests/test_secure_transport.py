@@ -11,13 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codec.face_file import decode_face, load_face_file, save_face_file
-from common.errors import InputError
-from common.keys import read_key
-from protocol.secure import SecureSealer
-from protocol.secure_stream import seal_stream
-from protocol.stream import PacketEncoder, frame_bytes
-from sender.keygen import main as keygen
+from facedeform.codec.face_file import Face, decode_face, save_face_file
+from facedeform.common.errors import InputError
+from facedeform.common.keys import read_key
+from facedeform.protocol.secure import SecureSealer
+from facedeform.protocol.secure_stream import seal_stream
+from facedeform.protocol.stream import PacketEncoder, frame_bytes
+from facedeform.sender.keygen import main as keygen
 from tests.support import (
     DEADLINE,
     N,
@@ -157,11 +157,11 @@ def test_a_face_file_sealed_at_rest_opens_only_with_its_key(tmp_path, key_file, 
     ident = save_face_file(data, sealed_path, key)
     sealed = sealed_path.read_bytes()
     assert ident == decode_face(data).content_id and data[:64] not in sealed and data[-64:] not in sealed
-    assert load_face_file(sealed_path, key).content_id == ident
+    assert Face.load(sealed_path, key).model.content_id == ident
     with pytest.raises(InputError, match="--key"):
-        load_face_file(sealed_path)
+        Face.load(sealed_path)
     with pytest.raises(InputError, match="another key"):
-        load_face_file(sealed_path, os.urandom(32))
+        Face.load(sealed_path, os.urandom(32))
     enc = PacketEncoder(header(ident), 2)
     packets = enc.header() + [p for x in smooth_tracks(10) for p in enc.frame(x, True)]
     stream = tmp_path / "s.fd"

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer, extended_params
-from codec.face_model import load_base_face
-from codec.mouth import MOUTH_PARAMS
-from codec.upper_face import UPPER_PARAMS
-from sender.fidelity import fidelity
-from sender.fit import ModelFit
+from facedeform.codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer, extended_params
+from facedeform.codec.face_model import load_base_face
+from facedeform.codec.mouth import MOUTH_PARAMS
+from facedeform.codec.upper_face import UPPER_PARAMS
+from facedeform.sender.fidelity import fidelity
+from facedeform.sender.fit import ModelFit
 
 UPPER = slice(len(PAPER_PARAMS), len(PAPER_PARAMS) + len(UPPER_PARAMS))
 MOUTH = [EXTENDED_PARAMS.index(n) for n in MOUTH_PARAMS]
@@ -96,5 +96,7 @@ def test_a_face_that_would_fold_is_fitted_again_without_folding(model, mouth):
         target = deformer.blend(sent)  # the face as sent, folded
         params = fit.paper(target)
         assert not deformer.would_fold(extended_params(names, params))
-        error = lambda p: np.linalg.norm(deformer.deform_extended(p)[fit.lower] - target[fit.lower])  # noqa: E731
+        def error(p, target=target):
+            return np.linalg.norm(deformer.deform_extended(p)[fit.lower] - target[fit.lower])
+
         assert error(extended_params(names, params)) <= error(sent) + 1e-12

@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from codec.face_model import load_base_face
-from protocol.stream import DatagramDecoder, Frame, StreamDecoder
+from facedeform.codec.face_model import load_base_face
+from facedeform.protocol.stream import DatagramDecoder, Frame, StreamDecoder
 from tests.support import CLIP, SEND, assert_one_line_error, run
 
 FRAMES = 30
@@ -102,8 +102,8 @@ def test_output_paths_are_checked_before_the_work(tmp_path):
 
 
 def test_the_session_refuses_settings_out_of_range():
-    from common.errors import InputError
-    from sender.config import LIMITS, SendConfig
+    from facedeform.common.errors import InputError
+    from facedeform.sender.config import LIMITS, SendConfig
 
     for name, (lo, hi) in LIMITS.items():
         with pytest.raises(InputError, match=name.replace("_", " ")):
@@ -154,7 +154,7 @@ def test_udp_loopback():
     try:
         while True:
             frames += sum(isinstance(e, Frame) for e in decoder.receive(sock.recv(65536)))
-    except socket.timeout:
+    except TimeoutError:
         pass
     sock.close()
     assert frames == 75

@@ -9,13 +9,13 @@ import cv2
 import numpy as np
 import pytest
 
-from codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
-from codec.face_model import load_base_face
-from codec.render import Renderer
-from codec.texture import texture_from_frame
-from receiver.face_view import portrait_camera
-from sender.analysis import FaceAnalyser, Smoothing
-from sender.tracker import FaceTracker
+from facedeform.codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
+from facedeform.codec.face_model import load_base_face
+from facedeform.codec.render import Renderer
+from facedeform.codec.texture import texture_from_frame
+from facedeform.receiver.face_view import portrait_camera
+from facedeform.sender.analysis import FaceAnalyser, Smoothing
+from facedeform.sender.tracker import FaceTracker
 from tests.support import ROOT
 
 GRID = ROOT / "samples" / "grid_bbaf2n.mpg"

@@ -6,12 +6,12 @@ import cv2
 import numpy as np
 import pytest
 
-from codec.face_model import load_base_face
-from protocol.stream import PacketEncoder
-from sender.analysis import FaceAnalyser, Smoothing
-from sender.session import stream_header
-from sender.smoothing import OneEuroFilter
-from sender.tracker import FaceTracker
+from facedeform.codec.face_model import load_base_face
+from facedeform.protocol.stream import PacketEncoder
+from facedeform.sender.analysis import FaceAnalyser, Smoothing
+from facedeform.sender.session import stream_header
+from facedeform.sender.smoothing import OneEuroFilter
+from facedeform.sender.tracker import FaceTracker
 from tests.support import CLIP
 
 RATE = 25.0

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from codec.face_model import load_base_face
-from codec.texture import texture_from_frame, uv_to_texel
+from facedeform.codec.face_model import load_base_face
+from facedeform.codec.texture import texture_from_frame, uv_to_texel
 
 FACE = load_base_face()
 

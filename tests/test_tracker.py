@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from common.errors import InputError
-from sender.detector import load_model
-from sender.tracker import FaceTracker
+from facedeform.common.errors import InputError
+from facedeform.sender.detector import load_model
+from facedeform.sender.tracker import FaceTracker
 from tests.support import ROOT
 
 DEV = Path(__file__).resolve().parents[2] / "shared" / "samples" / "dev"

@@ -20,9 +20,9 @@ import cv2
 import numpy as np
 import pytest
 
-from common.errors import InputError
-from receiver.viewer import BOUNDARY, Viewer, parse_serve
-from sender.detector import FaceDetector
+from facedeform.common.errors import InputError
+from facedeform.receiver.viewer import BOUNDARY, Viewer, parse_serve
+from facedeform.sender.detector import FaceDetector
 from tests.support import DEADLINE, FPS, RECV, ROOT, smooth_tracks, stream_packets
 
 BROWSER = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -103,7 +103,7 @@ def test_the_latest_frame_and_the_stats_are_served():
 
 
 def test_show_without_a_gui_points_to_serve(monkeypatch):
-    from receiver.output import Display
+    from facedeform.receiver.output import Display
 
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)

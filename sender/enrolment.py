@@ -1,0 +1,204 @@
+"""A person's face model from a video of them (``facedeform.enroll``, fd-enroll).
+
+The mesh is the person's own landmarks in a neutral frame with the head pose
+removed; the whole neutral frame is kept as the reference picture, with where
+the face sits in it, and their widest open mouth beside it: the receiver then
+draws the whole picture, warped by the moving face (codec/picture.py). When the
+clip shows them talking, the model also carries their own motion basis
+(sender/motion.py) and how far the hair and shoulders around the face follow
+the head (sender/motion_global.RingWeights).
+
+The clip is read twice: once over its first seconds to choose the neutral and
+the open-mouth frames, and once more over the motion window, measured against
+the model the first pass made (the model has to exist before motion can be
+measured against it, and holding a minute of frames would cost hundreds of MB).
+"""
+
+from dataclasses import dataclass, replace
+from itertools import islice
+
+import cv2
+import numpy as np
+
+from facedeform.codec.face_file import Face, decode_face, personal_face
+from facedeform.codec.face_model import BaseFace, ReferencePicture, load_base_face, mouth_vertices, normalise
+from facedeform.codec.motion_basis import MAX_COMPONENTS, OVER
+from facedeform.codec.texture import texture_from_frame
+from facedeform.common.errors import InputError, NoFaceError
+from facedeform.sender.calibrate import lip_gap
+from facedeform.sender.motion import learn_motion, residuals
+from facedeform.sender.motion_global import RingWeights
+from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
+from facedeform.sender.sources import open_source
+
+TEXTURE_SIZE = 256  # texels a side: about 20 KB as JPEG, detail for a 512-pixel rendering
+#: A frame's distance from neutral: lip gap (over eye distance) in units of GAP_UNIT plus head
+#: turn in units of ANGLE_UNIT, so a 0.05 gap (lips visibly parted) weighs as 10 degrees of turn.
+GAP_UNIT, ANGLE_UNIT = 0.05, 10.0
+#: On the dev clips each pattern up to 12 (the most their halves can teach) lowers the error at a given rate.
+MOTION_PATTERNS = 12
+#: The open mouth kept for the receiver: the enrolment window's widest lip gap (over eye distance)
+#: past OPEN_GAP with the head turned under MOUTH_TURN degrees, cropped with MOUTH_MARGIN pixels.
+OPEN_GAP, MOUTH_TURN, MOUTH_MARGIN = 0.08, 15.0, 3
+TEXTURE_SIDES = (64, 1024)
+
+
+@dataclass(frozen=True)
+class Enrolment:
+    """What enrolment made and chose: the face; the neutral frame's index, lip gap (over eye
+    distance) and head turn (degrees); the motion basis's patterns (0: none) and the frames with
+    a face it was learned from."""
+
+    face: Face
+    frame: int
+    lip_gap: float
+    head_turn: float
+    patterns: int
+    motion_frames: int
+
+
+def enroll_face(video, frame: int | None = None, seconds: float = 2.0, motion: int = MOTION_PATTERNS,
+                motion_over: str = "rest", motion_seconds: float = 60.0, picture: bool = True,
+                texture_size: int = TEXTURE_SIZE, on_frame=None) -> Enrolment:
+    """The face model of the person in ``video`` (a path, or an opened ``sender.sources`` source
+    for the neutral pass only when ``motion`` is 0 and ``picture`` False).
+
+    frame: the neutral frame's index (None: of the first ``seconds`` after the face appears, the
+    one with the mouth most closed and the head nearest frontal); motion: most patterns in the
+    motion basis (0: none), learned from the first ``motion_seconds`` over ``motion_over``
+    ("rest" or "paper", codec/motion_basis.py); picture: keep the reference picture (else only a
+    texture of ``texture_size`` texels a side); on_frame(done, total): progress of the motion pass.
+    Caller mistakes are ValueError; a clip that cannot be read or shows no face, FdError.
+    """
+    if frame is not None and frame < 0:
+        raise ValueError(f"frame takes an index from 0, not {frame}")
+    if not 0 <= motion <= MAX_COMPONENTS:
+        raise ValueError(f"motion must be 0 to {MAX_COMPONENTS}, not {motion}")
+    if motion_over not in OVER:
+        raise ValueError(f"motion_over must be one of {', '.join(OVER)}, not {motion_over!r}")
+    if not TEXTURE_SIDES[0] <= texture_size <= TEXTURE_SIDES[1]:
+        raise ValueError(f"texture_size must be {TEXTURE_SIDES[0]} to {TEXTURE_SIDES[1]}, not {texture_size}")
+    if not (seconds > 0 and motion_seconds > 0):
+        raise ValueError("seconds and motion_seconds must be above 0")
+    base = load_base_face()
+    found = first_seconds(_open(video), base, frame, seconds)
+    rgb = cv2.cvtColor(found.frame, cv2.COLOR_BGR2RGB)
+    texture, ref = None, None
+    if picture:
+        ref = reference_picture(rgb, found.landmarks, found.aligned, base, found.mouth)
+    else:
+        texture = texture_from_frame(rgb, found.landmarks[:, :2], base.uv, base.faces, texture_size)
+    first = decode_face(personal_face(found.aligned, texture, base, picture=ref))
+    basis, rings, frames = _learn(video, first, found.index, motion, motion_over, motion_seconds, on_frame)
+    if rings is not None:
+        ref = replace(ref, ring_weights=rings)
+    face = Face(personal_face(found.aligned, texture, base, basis, ref))
+    return Enrolment(face, found.index, found.score[0], found.score[1],
+                     0 if basis is None else basis.components, frames)
+
+
+def _open(video):
+    return open_source(str(video)) if isinstance(video, str) or hasattr(video, "__fspath__") else video
+
+
+def reference_picture(rgb: np.ndarray, landmarks: np.ndarray, aligned: np.ndarray, base: BaseFace,
+                      mouth=None) -> ReferencePicture:
+    """The whole (H, W, 3) RGB frame as the reference picture, with the projection that puts the
+    face model made from ``aligned`` (``personal_face`` normalises it, in ``base``'s topology) onto
+    its (468, 3) landmarks; ``mouth``: (RGB frame, landmarks) of a frame with the mouth open, or None."""
+    stable = list(STABLE_LANDMARKS)
+    pose = fit_pose(image_to_face_axes(landmarks)[stable], normalise(np.asarray(aligned, np.float64))[stable])
+    picture = ReferencePicture(rgb, pose.placement().matrix())
+    if mouth is None:
+        return picture
+    frame, points = mouth[0], mouth[1][mouth_vertices(base), :2].astype(np.float64)
+    (x0, y0), (x1, y1) = np.floor(points.min(axis=0)) - MOUTH_MARGIN, np.ceil(points.max(axis=0)) + MOUTH_MARGIN
+    x0, y0 = int(max(x0, 0)), int(max(y0, 0))
+    x1, y1 = int(min(x1, frame.shape[1])), int(min(y1, frame.shape[0]))
+    return ReferencePicture(rgb, picture.projection, np.ascontiguousarray(frame[y0:y1, x0:x1]), points - [x0, y0])
+
+
+@dataclass
+class FirstSeconds:
+    """The neutral frame (index, BGR frame, (468, 3) landmarks in pixels, (468, 3) pose-free
+    landmarks, (lip gap, degrees of turn)) and the widest open mouth ((RGB frame, landmarks) or None)."""
+
+    index: int
+    frame: np.ndarray
+    landmarks: np.ndarray
+    aligned: np.ndarray
+    score: tuple[float, float]
+    mouth: tuple[np.ndarray, np.ndarray] | None
+
+
+def first_seconds(source, base: BaseFace, wanted: int | None, seconds: float) -> FirstSeconds:
+    """One pass over the first ``seconds`` after the face appears (and on to frame ``wanted``):
+    the neutral frame (``wanted``, else the most neutral) and the frame with the mouth most open
+    past OPEN_GAP with the head turned under MOUTH_TURN degrees."""
+    from facedeform.sender.tracker import FaceTracker
+
+    tracker, stable = FaceTracker(), list(STABLE_LANDMARKS)
+    window = max(1, round(seconds * source.fps))
+    best, best_cost, mouth, mouth_gap, seen, count = None, 0.0, None, OPEN_GAP, 0, 0
+    for count, frame in enumerate(source.frames(), 1):
+        index = count - 1
+        landmarks = tracker.track(frame)
+        if landmarks is not None:
+            points = image_to_face_axes(landmarks)
+            pose = fit_pose(points[stable], base.vertices[stable])
+            gap, turn = float(lip_gap(landmarks)), float(np.linalg.norm(pose.head_rotation_vector()))
+            in_window = seen < window
+            seen += in_window
+            if in_window and gap > mouth_gap and turn < MOUTH_TURN:
+                mouth, mouth_gap = (cv2.cvtColor(frame, cv2.COLOR_BGR2RGB), landmarks), gap
+            cost = gap / GAP_UNIT + turn / ANGLE_UNIT
+            if index == wanted or (wanted is None and (best is None or cost < best_cost)):
+                best, best_cost = FirstSeconds(index, frame, landmarks, pose.apply(points), (gap, turn), None), cost
+        elif index == wanted:
+            raise NoFaceError(f"{_name(source)}: no face in frame {wanted}")
+        if seen >= window and (wanted is None or index >= wanted):
+            break
+    if wanted is not None and count <= wanted:
+        raise InputError(f"frame {wanted}: the clip has only {count} frames")
+    if best is None:
+        raise NoFaceError(f"{_name(source)}: no face found in any frame")
+    best.mouth = mouth
+    return best
+
+
+def _learn(video, face: BaseFace, neutral: int, patterns: int, over: str, seconds: float, on_frame):
+    """(the person's MotionBasis or None, their ring weights or None, frames with a face seen), from
+    one pass over the clip's first ``seconds``: the motion basis when ``patterns`` asks for one
+    (sender/motion.py), the ring weights when ``face`` has a reference picture
+    (sender/motion_global.RingWeights), each frame tracked once for both."""
+    from facedeform.sender.tracker import FaceTracker
+
+    rings = None if face.picture is None else RingWeights(face)
+    if not patterns and rings is None:
+        return None, None, 0
+    source = _open(video)
+    limit = max(neutral + 1, round(seconds * source.fps))
+    total = min(limit, source.length or limit)
+    tracker = _Watched(FaceTracker(), None if rings is None else rings.add)
+    update = None if on_frame is None else (lambda n: on_frame(n, total))
+    residual, vertices = residuals(islice(source.frames(), limit), tracker, face, source.fps, over, neutral, update)
+    motion = learn_motion(residual, vertices, patterns, over) if patterns else None
+    return motion, None if rings is None else rings.weights(), len(residual)
+
+
+class _Watched:
+    """A tracker that also hands each frame and its landmarks to ``watch`` (None: nobody)."""
+
+    def __init__(self, tracker, watch) -> None:
+        self._tracker, self._watch = tracker, watch
+
+    def track(self, frame_bgr: np.ndarray) -> np.ndarray | None:
+        landmarks = self._tracker.track(frame_bgr)
+        if self._watch is not None:
+            self._watch(frame_bgr, landmarks)
+        return landmarks
+
+
+def _name(source) -> str:
+    """The source's path for messages ('input' for a source without one)."""
+    return str(getattr(source, "path", "input"))
