@@ -9,6 +9,7 @@ is linear in the intensities (lids clipped to at most 1, fully closed).
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
@@ -23,6 +24,8 @@ from facedeform.common.errors import InputError
 AU_FILE = data_path("au_table.json")
 EXPRESSION_FILE = data_path("expressions.json")
 LIDS = [EXTENDED_PARAMS.index("lid_l"), EXTENDED_PARAMS.index("lid_r")]
+
+INTENSITY = (0.0, 2.0)  # the range of an expression's or AU's intensity
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,10 +49,18 @@ def _read(path: str | Path) -> dict:
     return data
 
 
-def _number(value, what: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise InputError(f"{what} must be a finite number, not {value!r}")
+def _number(value, what: str, lo: float = -math.inf, hi: float = math.inf) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) \
+            or not lo <= value <= hi:
+        raise InputError(f"{what} must be a finite number{'' if hi == math.inf else f' from {lo:g} to {hi:g}'}, "
+                         f"not {value!r}")
     return float(value)
+
+
+def _intensity(value, what: str) -> float:
+    """An intensity: 0 none, 1 the table's full expression or AU, up to INTENSITY's top for
+    exaggeration (beyond it the mesh tears: a 1e30 smile is not a face)."""
+    return _number(value, f"intensity of {what}", *INTENSITY)
 
 
 def _au(key, what: str) -> int:
@@ -110,7 +121,7 @@ def au_params(intensities: Mapping[int | str, float], tables: Tables | None = No
         au = _au(key, "AU vector")
         if au not in t.aus:
             raise InputError(f"unknown AU {au} (known: {', '.join(str(a) for a in sorted(t.aus))})")
-        out += _number(value, f"intensity of AU {au}") * t.aus[au][1]
+        out += _intensity(value, f"AU {au}") * t.aus[au][1]
     out[LIDS] = np.minimum(out[LIDS], 1.0)
     return out
 
@@ -120,5 +131,5 @@ def expression_params(name: str, intensity: float = 1.0, tables: Tables | None =
     t = tables or default_tables()
     if name not in t.expressions:
         raise InputError(f"unknown expression {name!r} (known: {', '.join(t.expressions)})")
-    scale = _number(intensity, f"intensity of {name}")
+    scale = _intensity(intensity, name)
     return au_params({au: scale * v for au, v in t.expressions[name].items()}, t)

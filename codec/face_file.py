@@ -56,10 +56,12 @@ from facedeform.codec.face_model import (
     mouth_vertices,
     normalise,
 )
+from facedeform.codec.image_header import image_size
 from facedeform.codec.motion_basis import MAX_COMPONENTS, OVER, MotionBasis
 from facedeform.codec.picture import RINGS, Placement, outer_loop
 from facedeform.common.errors import InputError
 from facedeform.common.keys import derive
+from facedeform.common.limits import MAX_SIDE
 
 MAGIC = b"FDFACE"
 VERSION = 4
@@ -67,7 +69,7 @@ READS = (1, 2, 3, 4)
 MAX_FILE = 16 << 20  # the stream header's limit for an in-band model
 MAX_FACES = 4096
 MAX_TEXTURE_SIDE = 2048
-PICTURE_SIDES = (16, 4096)  # pixels of a reference picture's width and height
+PICTURE_SIDES = (16, MAX_SIDE)  # pixels of a reference picture's width and height
 #: The face's height in a reference picture, over the picture's larger side: a face, not a speck or a blow-up.
 FACE_IN_PICTURE = (0.02, 2.0)
 #: How enrolment codes the reference picture (measured on 256x256 crops: docs/picture.md).
@@ -178,7 +180,7 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
         n_mouth, mouth_w, mouth_h = (int(x) for x in info.get("mouth", (0, 0, 0)))
         mouth_points = np.array(info.get("mouth_points", np.zeros((0, 2))), dtype=np.float64)
         rings = None if "rings" not in info else np.array(info["rings"], dtype=np.int64)
-    except (ValueError, KeyError, TypeError, OverflowError):
+    except (ValueError, KeyError, TypeError, OverflowError, RecursionError):
         raise bad("unreadable description") from None
     if n != N_LANDMARKS or not 0 < m <= MAX_FACES or n_tex < 0:
         raise bad(f"{n} vertices, {m} triangles")
@@ -225,9 +227,11 @@ def _decode_motion(data: bytes, pos: int, k: int, c: int, over: str, pattern: st
 
 
 def _decode_texture(data: bytes, bad) -> np.ndarray:
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    if image is None or max(image.shape[:2]) > MAX_TEXTURE_SIDE:
-        raise bad("texture is not a JPEG or PNG image up to 2048 pixels")
+    size = image_size(data)  # before decoding: a small file can declare a huge image
+    image = None if size is None or max(size) > MAX_TEXTURE_SIDE or min(size) < 1 else \
+        cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if image is None or image.shape[1::-1] != size:
+        raise bad(f"texture is not a JPEG or PNG image up to {MAX_TEXTURE_SIDE} pixels")
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
@@ -247,7 +251,8 @@ def _decode_picture(data: bytes, size: tuple[int, int], projection: np.ndarray, 
 
 
 def _decode_image(data: bytes, size: tuple[int, int], what: str, bad) -> np.ndarray:
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    """The image, decoded only once its header declares the ``size`` the face model does."""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if image_size(data) == size else None
     if image is None or image.shape[1::-1] != size:
         raise bad(f"{what} is not a {size[0]}x{size[1]} WebP, JPEG or PNG image")
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facedeform.common.limits import MAX_SIDE
+
 from .camera import Camera
 from .face_parts import eye_components, eye_discs, eye_pieces, teeth_columns
 from .raster import EYE, MOUTH, SPEC_STEPS, draw, resolve
@@ -113,8 +115,8 @@ class Renderer:
         self.faces = np.ascontiguousarray(faces, dtype=np.int32)
         self._min_vertices = int(faces.max()) + 1
         width, height = (int(s) for s in size)
-        if width <= 0 or height <= 0 or width > 8192 or height > 8192:
-            raise ValueError(f"size must be (width, height) in 1..8192, got {size}")
+        if not (0 < width <= MAX_SIDE and 0 < height <= MAX_SIDE):
+            raise ValueError(f"size must be (width, height) in 1..{MAX_SIDE}, got {size}")
         self.size = (width, height)
         if supersample not in (1, 2):
             raise ValueError(f"supersample must be 1 or 2, got {supersample}")

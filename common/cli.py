@@ -6,6 +6,8 @@ import os
 import sys
 from collections.abc import Callable
 
+from facedeform.common.limits import MAX_SIDE
+
 
 class ArgumentParser(argparse.ArgumentParser):
     """argparse, but a wrong argument is one line on stderr (exit 2), as every other user mistake."""
@@ -25,8 +27,8 @@ def parse_size(text: str) -> tuple[int, int]:
         size = (int(w), int(h or w))
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a size: {text!r} (use 512 or 640x480)") from None
-    if not all(16 <= s <= 4096 and s % 2 == 0 for s in size):
-        raise argparse.ArgumentTypeError(f"size {text!r} out of range (even numbers from 16 to 4096)")
+    if not all(16 <= s <= MAX_SIDE and s % 2 == 0 for s in size):
+        raise argparse.ArgumentTypeError(f"size {text!r} out of range (even numbers from 16 to {MAX_SIDE})")
     return size
 
 
@@ -85,7 +87,21 @@ def run_main(prog: str, body: Callable[[], int]) -> int:
     except FdError as exc:
         sys.stderr.write(f"{prog}: {exc}\n")
     except BrokenPipeError:
+        _drop_stdout()
         sys.stderr.write(f"{prog}: the other end of the pipe was closed\n")
+    except OSError as exc:  # a full disk, a read-only folder, a device that failed: the system's words
+        _drop_stdout()
+        where = f"{exc.filename}: " if exc.filename else ""
+        sys.stderr.write(f"{prog}: {where}{exc.strerror or exc}\n")
     except KeyboardInterrupt:
         return 130
     return 1
+
+
+def _drop_stdout() -> None:
+    """Points stdout at /dev/null, so that the interpreter's last flush of what could not be
+    written (a full disk, a closed pipe) does not print a second complaint."""
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (OSError, ValueError):  # no stdout to speak of
+        pass

@@ -7,7 +7,7 @@ import sys
 from functools import lru_cache
 from pathlib import Path
 
-from facedeform.common.cli import ArgumentParser, run_main
+from facedeform.common.cli import ArgumentParser, number, run_main
 
 EPILOG = """examples:
   fd-experiment samples/grid_bbaf2n.mpg --out results/
@@ -52,11 +52,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "interpolates; default 1); runs with N > 1 are named ours-<layout>-every<N>")
     p.add_argument("--baselines", nargs="*", default=list(CODECS), choices=tuple(CODECS),
                    help=f"conventional codecs (default all: {' '.join(CODECS)}; vvc is VVenC; none: ours only)")
-    p.add_argument("--rungs", type=int, default=5, metavar="N",
+    p.add_argument("--rungs", type=number(1, 20, kind=int), default=5, metavar="N",
                    help="baseline settings per codec, from its floor (CRF or QP at its coarsest) up by 3 "
                         "quantiser steps each, 6 for vvc (default 5)")
-    p.add_argument("--seconds", type=float, help="use only the first SECONDS of each clip")
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="local worker processes (default: cores)")
+    p.add_argument("--seconds", type=number(0.1, 36000), help="use only the first SECONDS of each clip")
+    p.add_argument("--jobs", type=number(1, 256, kind=int), default=os.cpu_count() or 1,
+                   help="local worker processes, 1-256 (default: cores)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on a Dask cluster instead (needs dask.distributed; workers must see --out)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from facedeform.codec.face_file import Face
+from facedeform.common.limits import MAX_SIDE
 
 __all__ = ["Face", "decode", "encode", "enroll"]
 
@@ -76,8 +77,8 @@ def decode(stream: bytes | str | PathLike | Iterable[bytes], face: Face | str | 
 
     if look is not None and look not in LOOKS:
         raise ValueError(f"look must be one of {', '.join(LOOKS)}, not {look!r}")
-    if size is not None and not (len(size) == 2 and all(isinstance(s, int) and 16 <= s <= 4096 for s in size)):
-        raise ValueError(f"size must be (width, height), each 16 to 4096, not {size!r}")
+    if size is not None and not (len(size) == 2 and all(isinstance(s, int) and 16 <= s <= MAX_SIDE for s in size)):
+        raise ValueError(f"size must be (width, height), each 16 to {MAX_SIDE}, not {size!r}")
     if face is not None and not isinstance(face, Face):
         face = Face.load(_path(face, "face"), key)
     pending: deque[np.ndarray] = deque()

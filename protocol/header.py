@@ -12,6 +12,7 @@ from functools import cached_property
 import numpy as np
 
 from facedeform.common.errors import BitstreamError
+from facedeform.common.limits import MAX_SIDE
 from facedeform.protocol.basis import basis_matrices
 from facedeform.protocol.framing import read_varint, varint
 from facedeform.protocol.quantise import dequantise
@@ -25,7 +26,6 @@ MAX_MODEL = 16 << 20  # bytes of pre-shared face model carried in-band
 MAX_KEY_INTERVAL = 255
 MAX_DIVISOR = 16
 MAX_STEP = 1e6  # a quantiser step: any index times any step stays finite (|index| < 2**34)
-MAX_SIZE = 16384  # pixels of the source's width or height
 #: Deformation rules a sender may assume (codec/deform.py), one byte on the wire: the index here.
 RULES = ("refined", "paper")
 _FLAG_F3_WITH_JAW, _FLAG_STATIC, _FLAG_BASIS = 1, 2, 4
@@ -72,7 +72,7 @@ class Header:
             raise BitstreamError(f"quantiser steps must be one number in (0, {MAX_STEP:g}] per parameter")
         if not (0 < self.fps <= 1000 and 1 <= self.key_interval <= MAX_KEY_INTERVAL
                 and 1 <= self.divisor <= MAX_DIVISOR and 0 <= self.model_size <= MAX_MODEL
-                and 0 <= self.quality <= 255 and 0 <= self.width <= MAX_SIZE and 0 <= self.height <= MAX_SIZE):
+                and 0 <= self.quality <= 255 and 0 <= self.width <= MAX_SIDE and 0 <= self.height <= MAX_SIDE):
             raise BitstreamError("header field out of range")
         if self.rule not in RULES:
             raise BitstreamError(f"unknown deformation rule {self.rule!r} (one of {', '.join(RULES)})")
@@ -137,8 +137,8 @@ def parse_header(body: bytes) -> Header:
     if flags & ~(_FLAG_F3_WITH_JAW | _FLAG_STATIC | _FLAG_BASIS):
         raise BitstreamError(f"unknown header flags {flags:#04x}")
     fps_milli, pos = _varint(body, 8, 1_000_000)
-    width, pos = _varint(body, pos, MAX_SIZE)
-    height, pos = _varint(body, pos, MAX_SIZE)
+    width, pos = _varint(body, pos, MAX_SIDE)
+    height, pos = _varint(body, pos, MAX_SIDE)
     if pos + 32 > len(body):
         raise BitstreamError("stream header cut short")
     face_id = body[pos:pos + 32].hex()

@@ -80,6 +80,8 @@ def read_script(path: str) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(f"{path}: {exc}") from None
     except (ValueError, TypeError, KeyError, AttributeError) as exc:
         raise InputError(f"{path}: malformed script ({exc})") from None
+    except RecursionError:
+        raise InputError(f"{path}: malformed script (nested too deeply)") from None
     times = np.array([t for t, _ in keys])
     if len(keys) < 2 or times[0] < 0 or not np.all(np.diff(times) > 0) or not np.isfinite(times).all():
         raise InputError(f"{path}: needs at least two keys with increasing times from 0")

@@ -11,7 +11,10 @@ through ``protocol.secure_stream`` instead: only authentic packets count.
 
 import os
 import queue
+import selectors
 import socket
+import stat
+import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -31,6 +34,8 @@ RCVBUF = 4 << 20  # bytes of UDP socket buffer asked for (Linux caps it at net.c
 QUEUE = 1024  # batches of decoded events waiting for the renderer
 _POLL = 0.1  # seconds: how often the reader looks up from the socket to see whether to stop
 HEADER_SUFFIX = ".fdheader"
+#: TCP: connections heard at once while waiting for the sender, and seconds each may stay silent.
+MAX_CANDIDATES, FIRST_BYTES = 8, 5.0
 MAX_HEADERS = 1000  # header files read from a --headers directory
 
 
@@ -178,22 +183,48 @@ class HeaderStore:
             raise InputError(f"--headers {directory}: not a directory")
 
     def load(self) -> list[Header]:
+        """The headers kept here: regular files only (a link, a FIFO or a device planted under a
+        header's name is passed over without being followed or opened for long), each read to at
+        most one packet's length."""
         headers = []
         for file in sorted(self.path.glob("*" + HEADER_SUFFIX))[:MAX_HEADERS]:
             try:
-                headers.append(parse_header(file.read_bytes()[:MAX_BODY]))
-            except (OSError, BitstreamError):
+                fd = os.open(file, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+            except OSError:
                 continue
+            with os.fdopen(fd, "rb") as f:
+                try:
+                    if not stat.S_ISREG(os.fstat(fd).st_mode):
+                        continue
+                    headers.append(parse_header(f.read(MAX_BODY)))
+                except (OSError, BitstreamError):
+                    continue
         return headers
 
     def keep(self, header: Header) -> None:
+        """Writes the header to a new file and renames it into place: a link planted under its
+        name is replaced, never written through."""
+        target = self.path / (header.ident.hex() + HEADER_SUFFIX)
         try:
-            (self.path / (header.ident.hex() + HEADER_SUFFIX)).write_bytes(encode_header(header))
+            fd, temporary = tempfile.mkstemp(HEADER_SUFFIX + ".new", dir=self.path)
+            with os.fdopen(fd, "wb") as f:
+                f.write(encode_header(header))
+            os.replace(temporary, target)
         except OSError:  # a receiver shows the call whether or not it can keep the header
             pass
 
 
 _SEALED = "the stream is sealed (encrypted): give fd-recv --key FILE"
+
+
+def _after(first: bytes, read):
+    """read(n) that returns ``first`` before what ``read`` gives."""
+    pending = [first] if first else []
+
+    def chained(n: int) -> bytes:
+        return pending.pop() if pending else read(n)
+
+    return chained
 
 
 def _no_stream(decoder, sealed: bool) -> str:
@@ -230,7 +261,7 @@ class Listener:
                 self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             self._sock.bind((host, port))
             if kind == socket.SOCK_STREAM:
-                self._sock.listen(1)
+                self._sock.listen(MAX_CANDIDATES)
         except OSError as exc:
             self._sock.close()
             raise InputError(f"cannot listen on {self.scheme}://{host}:{port} ({exc.strerror or exc})") from None
@@ -242,11 +273,52 @@ class Listener:
         if self.scheme == "udp":
             return UdpSource(self._sock, self._idle, self._key, self._headers)
         try:
-            conn, _ = self._sock.accept()
+            conn, first = self._first_stream()
         finally:
             self._sock.close()
         conn.settimeout(self._idle)
-        return ByteSource(conn.recv, closing=conn.close, key=self._key)
+        return ByteSource(_after(first, conn.recv), closing=conn.close, key=self._key)
+
+    def _first_stream(self) -> tuple[socket.socket, bytes]:
+        """(the first connection whose first bytes start an fd stream, those bytes). Connections
+        are accepted as they come, up to MAX_CANDIDATES at once: one that stays silent for
+        FIRST_BYTES seconds, closes, or sends anything else is closed, so that an idle or stray
+        client cannot lock the real sender out."""
+        candidates: dict[socket.socket, float] = {}  # connection -> when it must have spoken
+        with selectors.DefaultSelector() as selector:
+            selector.register(self._sock, selectors.EVENT_READ)
+            try:
+                while True:
+                    now = time.monotonic()
+                    for conn in [c for c, due in candidates.items() if due <= now]:
+                        selector.unregister(conn)
+                        conn.close()
+                        del candidates[conn]
+                    wait = min(candidates.values()) - now if candidates else None
+                    for ready, _ in selector.select(wait):
+                        if ready.fileobj is self._sock:
+                            conn, _ = self._sock.accept()
+                            if len(candidates) >= MAX_CANDIDATES:
+                                conn.close()
+                                continue
+                            conn.setblocking(False)
+                            selector.register(conn, selectors.EVENT_READ)
+                            candidates[conn] = now + FIRST_BYTES
+                            continue
+                        conn = ready.fileobj  # type: ignore[assignment]
+                        selector.unregister(conn)
+                        del candidates[conn]
+                        try:
+                            first = conn.recv(CHUNK)
+                        except OSError:
+                            first = b""
+                        if first[:1] == bytes([SYNC]):
+                            conn.setblocking(True)
+                            return conn, first
+                        conn.close()
+            finally:
+                for conn in candidates:
+                    conn.close()
 
     def close(self) -> None:
         self._sock.close()

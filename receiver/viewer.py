@@ -10,6 +10,7 @@ no GUI, so it works with the headless OpenCV the project depends on, where
 
 import json
 import socket
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -26,6 +27,10 @@ JPEG_QUALITY = 85
 #: Seconds after which a stream sends its latest frame again when no new one came: a stalled call
 #: keeps its picture in browsers that draw a part once the next begins, and a browser that left is noticed.
 REPEAT = 1.0
+#: Browsers served at once (more are closed at once) and seconds a connection may stay silent
+#: (a request not sent, a stream not read) before it is closed: a slow or half-open client costs
+#: a thread for at most this long, and a flood of them no more than this many threads.
+MAX_CLIENTS, IDLE = 16, 10.0
 
 PAGE = """<!doctype html>
 <html><head><meta charset="utf-8"><title>fd-recv</title>
@@ -81,8 +86,8 @@ class Viewer:
         self._seq = 0  # frames written so far
         self._jpeg: tuple[int, bytes] = (0, b"")  # the latest frame encoded, and its number
         self._closed = False
-        server = type("Server", (ThreadingHTTPServer,), {
-            "address_family": socket.AF_INET6 if ":" in host else socket.AF_INET, "daemon_threads": True})
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        server = type("Server", (_BoundedServer,), {"address_family": family})
         try:
             self._server = server((host, port), _handler(self))
         except OSError as exc:
@@ -137,8 +142,41 @@ def live_stats(session, source, started: float) -> Callable[[], dict]:
     return stats
 
 
+class _BoundedServer(ThreadingHTTPServer):
+    """A thread per browser, at most MAX_CLIENTS at once; a client that fails or leaves is no
+    traceback on fd-recv's stderr."""
+
+    daemon_threads = True
+
+    def __init__(self, *args, **kwargs) -> None:
+        self._slots = threading.BoundedSemaphore(MAX_CLIENTS)
+        super().__init__(*args, **kwargs)
+
+    def process_request(self, request, client_address) -> None:
+        if not self._slots.acquire(blocking=False):
+            self.shutdown_request(request)
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self._slots.release()
+            raise
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._slots.release()
+
+    def handle_error(self, request, client_address) -> None:
+        if not isinstance(sys.exc_info()[1], OSError):  # a browser that left or went silent is not news
+            super().handle_error(request, client_address)
+
+
 def _handler(viewer: Viewer) -> type[BaseHTTPRequestHandler]:
     class Handler(BaseHTTPRequestHandler):
+        timeout = IDLE  # on every read and write of the connection
+
         def do_GET(self) -> None:
             path = self.path.split("?")[0]
             if path == "/":
@@ -171,7 +209,7 @@ def _handler(viewer: Viewer) -> type[BaseHTTPRequestHandler]:
                     self.wfile.write(f"Content-Type: image/jpeg\r\nContent-Length: {len(jpeg)}\r\n\r\n".encode()
                                      + jpeg + f"\r\n--{BOUNDARY}\r\n".encode())
                     self.wfile.flush()
-            except (BrokenPipeError, ConnectionResetError):  # the browser left
+            except OSError:  # the browser left, or stopped reading for IDLE seconds
                 pass
 
         def log_message(self, format, *args) -> None:  # noqa: A002 (the base class's name)

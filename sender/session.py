@@ -12,6 +12,8 @@ from facedeform.codec.face_file import Face
 from facedeform.codec.face_model import load_base_face
 from facedeform.codec.motion_basis import BASIS_PARAMS
 from facedeform.codec.regions import DEFAULT_RULE
+from facedeform.common.errors import InputError
+from facedeform.common.limits import MAX_SIDE
 from facedeform.common.npz import NpzAppender
 from facedeform.common.stages import Source
 from facedeform.protocol.basis import principal_basis
@@ -118,6 +120,9 @@ class SendSession:
 
         self.config = config = config or SendConfig()
         self.source = open_source(source) if isinstance(source, str) else source
+        if max(self.source.size) > MAX_SIDE:
+            raise InputError(f"the source is {self.source.size[0]}x{self.source.size[1]} pixels: a stream carries "
+                             f"at most {MAX_SIDE} a side (scale it down first)")
         model = load_base_face() if face is None else face.model
         fps = self.source.fps
         self.analyser = FaceAnalyser(FaceTracker(), model, fps, config.layout, calibration_frames=round(fps),

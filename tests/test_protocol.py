@@ -11,9 +11,10 @@ from hypothesis import strategies as st
 
 from facedeform.codec.deform import PAPER_PARAMS
 from facedeform.common.errors import BitstreamError, FdError
+from facedeform.common.limits import MAX_SIDE
 from facedeform.protocol.basis import SCALE
 from facedeform.protocol.framing import END, HEADER, SYNC, Delta, build, varint
-from facedeform.protocol.header import MAX_MODEL, MAX_SIZE, VERSION, encode_header, parse_header
+from facedeform.protocol.header import MAX_MODEL, VERSION, encode_header, parse_header
 from facedeform.protocol.quantise import QUALITIES, dequantise, hold_or_round, quantise
 from facedeform.protocol.stream import (
     Damage,
@@ -417,7 +418,7 @@ def test_bitrate_estimate_is_what_the_stream_takes(sealed, divisor):
     assert estimate == 8 * len(frame_bytes(packets, sealed))  # a second of frames: bits are bit/s
 
 
-@pytest.mark.parametrize("width, height, rule", [(0, 0, "refined"), (640, 480, "paper"), (MAX_SIZE, 1, "paper")])
+@pytest.mark.parametrize("width, height, rule", [(0, 0, "refined"), (640, 480, "paper"), (MAX_SIDE, 1, "paper")])
 def test_frame_size_and_rule_travel_in_the_header(width, height, rule):
     h = header(width=width, height=height, rule=rule)
     back = parse_header(encode_header(h))
@@ -425,7 +426,7 @@ def test_frame_size_and_rule_travel_in_the_header(width, height, rule):
     assert header(rule="paper") != header()
 
 
-@pytest.mark.parametrize("change", [{"width": MAX_SIZE + 1}, {"height": -1}, {"rule": "other"},
+@pytest.mark.parametrize("change", [{"width": MAX_SIDE + 1}, {"height": -1}, {"rule": "other"},
                                     {"steps": steps_for(PAPER_PARAMS) * 1e306}, {"steps": -steps_for(PAPER_PARAMS)}])
 def test_header_fields_out_of_range_are_refused(change):
     with pytest.raises(BitstreamError):
