@@ -33,7 +33,9 @@ RING_DEPTH = 0.5
 #: Above the face centre, rings out to this radius move fully with the head (hair); below, the
 #: fall-off starts at the face (neck and shoulders do not turn with it).
 HAIR_START = 1.3
-MOUTH_GAP = 4  # rows between the picture and the open mouth below it in the texture
+MOUTH_GAP = 4  # rows between the pictures and the open mouth below them in the texture
+#: A renewed picture textures a triangle that shows there with at least this share of its area at rest.
+SEEN_AREA = 0.5
 _FLIP = np.array([1.0, -1.0, 1.0])  # picture axes <-> (pixel x, pixel y down, depth)
 
 
@@ -136,6 +138,20 @@ def face_texture(face: BaseFace) -> tuple[np.ndarray | None, np.ndarray]:
     return picture.image, np.column_stack([placed[:, 0] / width, 1.0 + placed[:, 1] / height])
 
 
+def _areas(pixels: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(m,) signed areas of the triangles at (n, 2) pixels."""
+    a, b, c = (pixels[triangles[:, i]] for i in range(3))
+    return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+
+
+def _padding(pixels: np.ndarray, size: tuple[int, int], most: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels to add left and top, right and bottom of a ``size`` picture so that ``pixels`` fall
+    inside it with 2 to spare (at most ``most`` a side)."""
+    lo = np.maximum(np.ceil(-pixels.min(axis=0)), 0).astype(int) + 2
+    hi = np.maximum(np.ceil(pixels.max(axis=0) - size), 0).astype(int) + 2
+    return (lo, hi) if most is None else (np.minimum(lo, most), np.minimum(hi, most))
+
+
 def outer_loop(faces: np.ndarray) -> np.ndarray:
     """(L,) vertex indices of the mesh's longest boundary loop (edges of one triangle only), in order."""
     edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
@@ -203,29 +219,70 @@ class SceneMesh:
         pixels = (np.concatenate([rest, ring_rest]) * _FLIP)[:, :2]
         face_triangles, mouth = faces.copy(), face.mouth_faces
         self._mouth = np.zeros(0, np.int64)
-        self.texture = picture.image
-        # the open mouth goes below the picture in one texture, the picture's edges repeated as far
-        # as the rings reach (the clamp the picture alone would have); not past half a picture side
+        self._open = None  # (open mouth image, its vertices' pixels) when the scene draws the person's own
         height, width = picture.image.shape[:2]
-        lo = np.maximum(np.ceil(-pixels.min(axis=0)), 0).astype(int) + 2
-        hi = np.maximum(np.ceil(pixels.max(axis=0) - [width, height]), 0).astype(int) + 2
         mouth_image, mouth_points = picture.mouth, picture.mouth_points
+        lo, hi = _padding(pixels, (width, height))
         if mouth_image is not None and mouth_points is not None and max(*lo, *hi) <= max(width, height) // 2:
             self._mouth = mouth_vertices(face)
             copies = np.full(n, -1)
             copies[self._mouth] = len(pixels) + np.arange(len(self._mouth))
             face_triangles[mouth] = copies[faces[mouth]]
-            padded = cv2.copyMakeBorder(picture.image, lo[1], hi[1], lo[0], hi[0], cv2.BORDER_REPLICATE)
-            below = padded.shape[0] + MOUTH_GAP
-            atlas = np.zeros((below + mouth_image.shape[0], max(padded.shape[1], mouth_image.shape[1]), 3), np.uint8)
-            atlas[:padded.shape[0], :padded.shape[1]], atlas[below:, :mouth_image.shape[1]] = padded, mouth_image
-            self.texture = atlas
-            pixels = np.concatenate([pixels + lo, mouth_points + [0.0, below]])
+            self._open = (mouth_image, np.asarray(mouth_points, dtype=np.float64))
             mouth = np.zeros(len(faces), bool)
-        height, width = self.texture.shape[:2]
+        self.rest_pixels = pixels  # of the face and ring vertices in the reference picture
+        self.texture, (self.uv,) = self.textured([(picture.image, pixels)])
         self.triangles = np.concatenate([face_triangles, strips]).astype(np.int32)
         self.mouth_faces = np.concatenate([mouth, np.zeros(len(strips), bool)])
-        self.uv = np.column_stack([pixels[:, 0] / width, 1.0 - pixels[:, 1] / height])
+        self._rest_area = _areas(np.concatenate([pixels, pixels[self._mouth]]), self.triangles)
+
+    def textured(self, sources: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, list[np.ndarray]]:
+        """(texture, per source (vertices, 2) uv with v up) that texture the scene's face and ring
+        vertices by each source's image where its pixels ((n, 2), x right, y down) put them: the
+        reference picture at rest, a renewed picture where a frame's scene lay. One source without
+        the person's open mouth is its image as it is; otherwise the images go one below the other,
+        their edges repeated as far as the vertices reach (the clamp an image alone would have, at
+        most half a side), with the open mouth below them all."""
+        height, width = sources[0][0].shape[:2]
+        if self._open is None and len(sources) == 1:
+            pixels = sources[0][1]
+            return sources[0][0], [np.column_stack([pixels[:, 0] / width, 1.0 - pixels[:, 1] / height])]
+        blocks, placed, top = [], [], 0
+        for image, pixels in sources:
+            lo, hi = _padding(pixels, (width, height), max(width, height) // 2)
+            padded = cv2.copyMakeBorder(image, lo[1], hi[1], lo[0], hi[0], cv2.BORDER_REPLICATE)
+            blocks.append((top, padded))
+            placed.append(np.clip(pixels + lo, 0, [padded.shape[1], padded.shape[0]]) + [0.0, top])
+            top += padded.shape[0] + MOUTH_GAP
+        mouth_image, mouth_points = self._open if self._open is not None else (np.zeros((1, 1, 3), np.uint8),
+                                                                               np.zeros((0, 2)))
+        atlas = np.zeros((top + mouth_image.shape[0], max(max(b.shape[1] for _, b in blocks),
+                                                          mouth_image.shape[1]), 3), np.uint8)
+        for at, padded in blocks:
+            atlas[at:at + padded.shape[0], :padded.shape[1]] = padded
+        atlas[top:, :mouth_image.shape[1]] = mouth_image
+        height, width = atlas.shape[:2]
+        return atlas, [np.column_stack([p[:, 0] / width, 1.0 - p[:, 1] / height])
+                       for p in (np.concatenate([q, mouth_points + [0.0, top]]) for q in placed)]
+
+    def pixels(self, positions: np.ndarray) -> np.ndarray:
+        """(n, 2) pixels (x right, y down) of the face and ring vertices among :meth:`positions`."""
+        return (positions[:len(positions) - len(self._mouth)] * _FLIP)[:, :2]
+
+    def seen(self, positions: np.ndarray, depth: np.ndarray, nearest: np.ndarray) -> np.ndarray:
+        """(triangles,) bool: which scene triangles a frame with these ``positions`` (picture axes)
+        shows well enough to texture others by it: facing the viewer as at rest, at least
+        SEEN_AREA of their area at rest, and nearest at their centre in ``nearest`` ((H, W) depth of
+        that frame's picture along the view, ``depth`` (vertices,) that of each vertex)."""
+        pixels = (positions * _FLIP)[:, :2]
+        area = _areas(pixels, self.triangles)
+        centre = pixels[self.triangles].mean(axis=1)
+        height, width = nearest.shape
+        col = np.clip(np.floor(centre[:, 0]).astype(int), 0, width - 1)
+        row = np.clip(np.floor(centre[:, 1]).astype(int), 0, height - 1)
+        tolerance = 0.02 * self.reference.scale  # a fiftieth of the face's height
+        front = depth[self.triangles].mean(axis=1) <= nearest[row, col] + tolerance
+        return front & (area * np.sign(self._rest_area) >= SEEN_AREA * np.abs(self._rest_area))
 
     def default_weights(self) -> np.ndarray:
         """(rings x boundary,) how far each ring vertex follows the head without measured weights:

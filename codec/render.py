@@ -164,6 +164,10 @@ class Renderer:
             raise ValueError(f"{name} must be a bool mask of shape ({len(self.faces)},)")
         return mask
 
+    def set_texture(self, uv, texture) -> None:
+        """Texture with ``texture`` at ``uv`` from the next frame on: as the constructor's (a renewed picture)."""
+        self._uv, self._texture = self._parse_texture(uv, texture)
+
     def set_background(self, background) -> None:
         """Draw over ``background`` from the next frame on: as the constructor's (a moving camera's picture)."""
         self._background = self._parse_background(background)

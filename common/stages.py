@@ -80,9 +80,9 @@ class StreamSource(Protocol):
 
 
 class View(Protocol):
-    """(k,) parameters of the stream's layout -> one (H, W, 3) uint8 RGB picture."""
+    """(k,) parameters of the stream's layout (of frame ``seq``) -> one (H, W, 3) uint8 RGB picture."""
 
-    def render(self, params: np.ndarray) -> np.ndarray: ...
+    def render(self, params: np.ndarray, seq: int | None = None) -> np.ndarray: ...
 
 
 class Sink(Protocol):

@@ -38,8 +38,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=Path("results"), help="output folder (default results/)")
     p.add_argument("--sizes", type=int, nargs="+", default=[256, 512], choices=(128, 256, 512),
                    help="face-crop sizes (default 256 512)")
-    p.add_argument("--qualities", type=int, nargs="+", default=[1, 2, 3, 4, 5], choices=range(1, 6),
-                   metavar="Q", help="our quality levels (default 1 2 3 4 5; fd-send's default is 3)")
+    p.add_argument("--qualities", type=int, nargs="*", default=[1, 2, 3, 4, 5], choices=range(1, 6),
+                   metavar="Q", help="our quality levels (default 1 2 3 4 5; fd-send's default is 3; none: only "
+                                     "--bitrates)")
+    p.add_argument("--bitrates", type=number(0.5, 1000), nargs="*", default=[], metavar="KBPS",
+                   help="also our runs at these rates (fd-send --bitrate: with the own face, what the parameters "
+                        "leave renews the picture), e.g. 1.5 4 10 30")
     p.add_argument("--layouts", nargs="+", default=["auto"], choices=("auto", "paper", "full", "mouth", "personal"),
                    help="our parameter sets (default auto: fd-send's default, personal with the own face's "
                         "motion basis); personal runs with the own face only")
@@ -97,9 +101,10 @@ def _run(args) -> int:
             clip = prepare(path, size, work, args.seconds)
             say(f"fd-experiment: {clip.name} at {size}x{size}: {len(clip.frames)} frames at {clip.fps:g} fps")
             prepared.append({"name": clip.name, "path": str(clip.path), "fps": clip.fps, "size": size})
-    tasks = [{**c, "kind": "ours", "layout": layout, "quality": q, "own": face == "own", "every": n,
-              "work": str(work), "key": f"{ours_name(layout, face == 'own', n)}_q{q}"}
-             for c in prepared for face in args.faces for layout in args.layouts for q in args.qualities
+    settings = [f"q{q}" for q in args.qualities] + [f"{b:g}k" for b in args.bitrates]
+    tasks = [{**c, "kind": "ours", "layout": layout, "setting": s, "own": face == "own", "every": n,
+              "work": str(work), "key": f"{ours_name(layout, face == 'own', n)}_{s}"}
+             for c in prepared for face in args.faces for layout in args.layouts for s in settings
              for n in args.send_every if face == "own" or layout != "personal"]
     tasks += [{**c, "kind": codec, "setting": s, "work": str(work), "key": f"{codec}_{CODECS[codec].knob}{s}"}
               for c in prepared for codec in args.baselines for s in ladder(codec, args.rungs)]
@@ -173,7 +178,7 @@ def execute(task: dict) -> dict:
 
     clip = _clip(task["name"], task["path"], task["fps"])
     if task["kind"] == "ours":
-        return run_ours(clip, task["quality"], task["layout"], Path(task["work"]), task["own"], task["every"])[0]
+        return run_ours(clip, task["setting"], task["layout"], Path(task["work"]), task["own"], task["every"])[0]
     return run_baseline(clip, task["kind"], task["setting"], Path(task["work"]))[0]
 
 

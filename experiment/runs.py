@@ -61,18 +61,19 @@ def ours_name(layout: str, own_face: bool, every: int = 1) -> str:
     return f"ours-{layout}" + ("-own" if own_face else "") + (f"-every{every}" if every > 1 else "")
 
 
-def run_ours(clip: Clip, quality: int, layout: str, work: Path, own_face: bool = False,
+def run_ours(clip: Clip, setting: str, layout: str, work: Path, own_face: bool = False,
              every: int = 1) -> tuple[dict, list]:
     """fd-send then fd-recv on the clip's crop, with the generic face or the speaker's own model
     (shared beforehand: its bytes count as one-off, with the stream header), sending one frame in
-    ``every`` with parameter set ``layout`` (auto: fd-send's own choice); returns the row and the
-    decoded frames, at the crop's size."""
+    ``every`` with parameter set ``layout`` (auto: fd-send's own choice) at ``setting``: a quality
+    level "q3" or a rate "4k" (kbit/s); returns the row and the decoded frames, at the crop's size."""
     size = clip.frames[0].shape[0]
     name = ours_name(layout, own_face, every)
-    stream = Path(work) / f"{clip.name}_{size}_{name}_q{quality}.fd"
+    stream = Path(work) / f"{clip.name}_{size}_{name}_{setting}.fd"
     face = ["--face", str(enroll(clip, work))] if own_face else []
+    rate = ["--quality", setting[1:]] if setting.startswith("q") else ["--bitrate", setting[:-1]]
     started = time.perf_counter()
-    _tool("facedeform.sender.cli", str(clip.path), "--quality", str(quality), "--params", layout,
+    _tool("facedeform.sender.cli", str(clip.path), *rate, "--params", layout,
           "--send-every", str(every), "-o", str(stream), "-q", *(face + ["--face-by-id"] if own_face else []))
     encode_s = time.perf_counter() - started
     started = time.perf_counter()
@@ -84,7 +85,7 @@ def run_ours(clip: Clip, quality: int, layout: str, work: Path, own_face: bool =
         raise FdError(f"{stream}: no whole header packet")
     header = 1 + header_size
     n = len(clip.frames)
-    row = {"clip": clip.name, "size": size, "codec": name, "setting": f"q{quality}",
+    row = {"clip": clip.name, "size": size, "codec": name, "setting": setting,
            "look": "picture" if own_face else "shaded",
            "frames": n, "fps": clip.fps, "stream_bytes": len(data) - header,
            "oneoff_bytes": header + (Path(face[1]).stat().st_size if own_face else 0),

@@ -21,7 +21,7 @@ import numpy as np
 from facedeform.common.errors import BitstreamError
 from facedeform.protocol.arith import Decoder, Incomplete
 from facedeform.protocol.entropy import GroupState
-from facedeform.protocol.events import Damage, End, Frame, Model, Stats
+from facedeform.protocol.events import Damage, End, Frame, Model, Picture, Stats
 from facedeform.protocol.framing import (
     DELTA,
     END,
@@ -33,6 +33,7 @@ from facedeform.protocol.framing import (
     MAX_FRAME,
     MAX_REDUNDANCY,
     MODEL,
+    PICTURE,
     SYNC,
     frame_count,
     inner_check,
@@ -45,7 +46,16 @@ from facedeform.protocol.framing import (
 from facedeform.protocol.header import ID_BYTES, Header, parse_header
 from facedeform.protocol.priors import models_for
 
+MAX_PICTURE = 1 << 18  # bytes of one renewal of the picture: far more than any rate asks for
 MAX_SEEK = 1 << 16  # bytes searched for a header before the input is declared foreign
+
+
+def _varint_or_fail(data: bytes, pos: int, limit: int) -> tuple[int, int]:
+    """(value, next position); BitstreamError if ``data`` ends first or the value is over ``limit``."""
+    got = read_varint(data, pos, limit)
+    if got is None:
+        raise BitstreamError("packet ends inside a number")
+    return got
 
 
 class PacketDecoder:
@@ -74,6 +84,7 @@ class PacketDecoder:
         self._out = 0  # next output frame number
         self._last: tuple[int, np.ndarray, bool] | None = None  # coded index, params, face of the last decoded
         self._model = bytearray()
+        self._picture: tuple[int, int, bytearray] | None = None  # (frame, total bytes, bytes so far) of a renewal
         self._previous = b""
         #: Bytes of input (junk and damage included) before the packet being read: its callers set it.
         self.position = 0
@@ -167,6 +178,8 @@ class PacketDecoder:
                 events = self._on_header(packet.body)
             elif packet.kind == MODEL:
                 events = self._on_model(packet.body)
+            elif packet.kind == PICTURE:
+                events = self._on_picture(packet.body)
             else:
                 events = self._on_end(packet.body, 1 + len(data))
         except BitstreamError:
@@ -303,6 +316,29 @@ class PacketDecoder:
         self._model += chunk
         return [Model(bytes(self._model))] if len(self._model) == self.header.model_size else []
 
+    def _on_picture(self, body: bytes) -> list | None:
+        """A piece of a renewal of the picture: pieces come in order, one renewal at a time (a new
+        frame's first piece drops an unfinished one); the whole renewal is one event."""
+        frame, pos = _varint_or_fail(body, 0, MAX_FRAME)
+        total, pos = _varint_or_fail(body, pos, MAX_PICTURE)
+        offset, pos = _varint_or_fail(body, pos, MAX_PICTURE)
+        piece = body[pos:]
+        if not piece or offset + len(piece) > total:
+            return None
+        held = self._picture
+        if held is not None and held[0] == frame and held[1] == total and offset < len(held[2]):
+            self.stats.duplicates += 1
+            return []
+        if offset == 0:
+            held = self._picture = (frame, total, bytearray())
+        if held is None or (held[0], held[1], len(held[2])) != (frame, total, offset):
+            return []  # a piece of a renewal whose start was lost: it cannot be used
+        held[2].extend(piece)
+        if len(held[2]) < total:
+            return []
+        self._picture = None
+        return [Picture(frame * self.header.divisor, bytes(held[2]))]
+
     def _on_end(self, body: bytes, size: int) -> list | None:
         divisor = self.header.divisor
         try:
@@ -395,7 +431,7 @@ class DatagramDecoder(PacketDecoder):
         kind = packet_type(data[1]) if len(data) > 1 else -1
         if self.header is None:
             return kind == HEADER or (kind == KEY and bool(self._known))
-        return kind in (HEADER, MODEL, KEY, END)
+        return kind in (HEADER, MODEL, KEY, END, PICTURE)
 
 
 class WrapsPacketDecoder:

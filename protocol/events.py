@@ -28,6 +28,14 @@ class Model:
 
 
 @dataclass(frozen=True)
+class Picture:
+    """A renewal of the picture for frame ``seq`` (the picture layer: its own format, codec/renewal.py)."""
+
+    seq: int
+    data: bytes
+
+
+@dataclass(frozen=True)
 class Damage:
     """Frames from ``seq`` on are lost until the next keyframe; ``reason`` is one line for the user."""
 

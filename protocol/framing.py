@@ -17,8 +17,13 @@ A code never starts with :data:`SYNC`, which is all a decoder needs to tell a
 delta from the rest; a decoder reads a delta only where the packet before it
 ended. A datagram holds one packet's bytes exactly as on a byte stream.
 
-The check is as wide as what it guards is worth: CRC-32 for the header and
-model chunks, CRC-16 for keyframes and the end mark, CRC-8 for delta packets. A
+The picture layer's packets (a renewal of the picture, in pieces) are framed
+like model chunks::
+
+    0xFD | type byte | length varint | frame varint | total varint | offset varint | piece | check
+
+The check is as wide as what it guards is worth: CRC-32 for the header,
+model chunks and picture pieces, CRC-16 for keyframes and the end mark, CRC-8 for delta packets. A
 delta's check also covers the number of its first frame, which is not sent: a
 delta is accepted only by a decoder that holds exactly the frames it was
 predicted from, so a lost or repeated packet is caught without spending bits on
@@ -32,15 +37,15 @@ from dataclasses import dataclass
 from facedeform.common.errors import BitstreamError
 
 SYNC = 0xFD
-HEADER, MODEL, KEY, DELTA, END = range(5)
-TYPE_NAMES = ("header", "model", "key", "delta", "end")
+HEADER, MODEL, KEY, DELTA, END, PICTURE = range(6)
+TYPE_NAMES = ("header", "model", "key", "delta", "end", "picture")
 MAX_BODY = 4096  # longer than any valid packet: header with 64 names, 1 KiB model chunk, 32 keyframe frames
 MAX_COUNT = 32  # frames per packet (5 bits)
 MAX_REDUNDANCY = 3  # earlier frames packets a datagram may carry again (protocol.encoder.Datagrams)
 MAX_DATAGRAM = MAX_BODY + 64  # bytes: no datagram of ours, sealed or not, is longer
 MAX_FRAME = (1 << 32) - 1  # coded frame numbers (a delta's check covers 4 bytes of it): 5 years at 25 fps
-_CHECK = {HEADER: 4, MODEL: 4, KEY: 2, DELTA: 1, END: 2}
-_FRAMED = (HEADER, MODEL, END)  # the packets with a length field
+_CHECK = {HEADER: 4, MODEL: 4, KEY: 2, DELTA: 1, END: 2, PICTURE: 4}
+_FRAMED = (HEADER, MODEL, END, PICTURE)  # the packets with a length field
 
 
 def _crc8_table() -> list[int]:
@@ -119,7 +124,7 @@ class Packet:
 
 
 def build(kind: int, body: bytes) -> bytes:
-    """A header, model or end packet's bytes, sync byte first."""
+    """A header, model, end or picture packet's bytes, sync byte first."""
     if kind not in _FRAMED or len(body) > MAX_BODY:
         raise BitstreamError(f"cannot frame a {TYPE_NAMES[kind]} packet of {len(body)} bytes")
     data = bytes([type_byte(kind)]) + varint(len(body)) + body

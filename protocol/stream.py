@@ -8,13 +8,13 @@ specified in docs/bitstream.md.
 
 from facedeform.protocol.decoder import DatagramDecoder, PacketDecoder, StreamDecoder
 from facedeform.protocol.encoder import Datagrams, PacketEncoder, StreamEncoder, frame_bytes, stream_size
-from facedeform.protocol.events import Damage, End, Frame, Model, Stats
+from facedeform.protocol.events import Damage, End, Frame, Model, Picture, Stats
 from facedeform.protocol.header import VERSION, Header
 from facedeform.protocol.quantise import DEFAULT_QUALITY, QUALITIES, steps_for
 from facedeform.protocol.rate import quality_for_bitrate
 
 __all__ = [
     "DEFAULT_QUALITY", "QUALITIES", "VERSION", "Damage", "DatagramDecoder", "Datagrams", "End", "Frame", "Header",
-    "Model", "PacketDecoder", "PacketEncoder", "Stats", "StreamDecoder", "StreamEncoder", "frame_bytes",
+    "Model", "PacketDecoder", "Picture", "PacketEncoder", "Stats", "StreamDecoder", "StreamEncoder", "frame_bytes",
     "quality_for_bitrate", "steps_for", "stream_size",
 ]

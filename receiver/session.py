@@ -14,7 +14,7 @@ from facedeform.codec.face_model import BaseFace, load_base_face
 from facedeform.common.errors import BitstreamError, InputError
 from facedeform.common.npz import NpzAppender
 from facedeform.common.stages import Sink, StreamSource, View
-from facedeform.protocol.stream import Damage, End, Frame, Header, Model
+from facedeform.protocol.stream import Damage, End, Frame, Header, Model, Picture
 from facedeform.receiver.face_view import default_look, open_view, output_size
 
 LATENCY_WINDOW = 10_000  # frames: latency statistics cover the last 6-7 minutes at 25 fps
@@ -52,7 +52,7 @@ class ReceiveSession:
         self.source: StreamSource | None = None
         self.face_kind: str | None = None
         self.face_id: str | None = None
-        self.frames = self.concealed = self.interpolated = self.written = 0
+        self.frames = self.concealed = self.interpolated = self.written = self.renewals = 0
         #: seconds from the arrival of a frame's packet to its output, for the last LATENCY_WINDOW frames
         self.latency: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.latency_max = 0.0
@@ -103,11 +103,29 @@ class ReceiveSession:
                 self._use_model(event.data)
         elif isinstance(event, Frame):
             self._frame(event, arrived)
+        elif isinstance(event, Picture):
+            self._renew(event)
         elif isinstance(event, Damage):
             self._warn(f"damaged stream at frame {event.seq} ({event.reason}): "
                        "holding the last frame until the next keyframe")
         elif isinstance(event, End) and event.frames != self.frames:
             raise BitstreamError(f"stream says {event.frames} frames, {self.frames} arrived")
+
+    def _renew(self, event: Picture) -> None:
+        """A renewal of the picture (the picture layer): handed to a view that draws the whole
+        picture; one that cannot be read is reported and left out, the face drawn as before."""
+        from facedeform.codec.renewal import decode_renewal
+        from facedeform.receiver.face_view import PictureView
+
+        view = self._view
+        if not isinstance(view, PictureView):
+            return
+        residual = decode_renewal(event.data, view.picture_size)
+        if residual is None:
+            self._warn(f"damaged picture renewal at frame {event.seq}: left out")
+            return
+        self.renewals += 1
+        view.renew(event.seq, residual)
 
     def _start(self, header: Header) -> None:
         self._header = header
@@ -155,7 +173,7 @@ class ReceiveSession:
         repeats = math.ceil((frame.seq + 1) * self._ratio) - math.ceil(frame.seq * self._ratio)
         if not repeats:
             return
-        image = self._view.render(frame.params)
+        image = self._view.render(frame.params, frame.seq)
         for _ in range(repeats):
             for sink in self._sinks:
                 sink.write(image)
@@ -180,7 +198,7 @@ class ReceiveSession:
         ms = np.array(self.latency) * 1000 if self.latency else np.zeros(1)
         return {
             "frames": self.frames, "written": self.written, "concealed": self.concealed,
-            "interpolated": self.interpolated,
+            "interpolated": self.interpolated, "picture_renewals": self.renewals,
             "damage_reports": s.damaged if s else 0, "packets": s.packets if s else 0,
             "duplicates": s.duplicates if s else 0, "skipped_bytes": s.skipped_bytes if s else 0,
             "ended": bool(self.source and self.source.decoder.ended),

@@ -103,6 +103,7 @@ class FrameAnalysis:
     pose: Pose | None
     params: np.ndarray  # (k,) float64 in the analyser's ``names`` order
     target: np.ndarray | None = None  # (468, 3) observed pose-free face in base-face units (RestFace.target)
+    frame: np.ndarray | None = None  # the (H, W, 3) uint8 BGR frame itself, for the picture layer
 
 
 class FaceAnalyser:
@@ -155,7 +156,7 @@ class FaceAnalyser:
         return POSE_PARAMS if self._translate else POSE_PARAMS[:3]
 
     def run(self, frames: Iterable[np.ndarray]) -> Iterator[FrameAnalysis]:
-        pending: list[tuple[np.ndarray | None, Pose | None, np.ndarray | None, np.ndarray]] = []
+        pending: list[tuple[np.ndarray | None, Pose | None, np.ndarray | None, np.ndarray, np.ndarray]] = []
         previous = np.zeros(len(self.names))
         for index, frame in enumerate(frames):
             if self._picture_width:
@@ -168,24 +169,24 @@ class FaceAnalyser:
                 self.frames_without_face += 1
             still = np.zeros(0) if self._global is None else self._global.measure(frame, landmarks)
             if self.rest is None:
-                pending.append((landmarks, pose, aligned, still))
+                pending.append((landmarks, pose, aligned, still, frame))
                 if not self._ready(pending, index):
                     continue
                 self._calibrate(pending)
                 for item in pending:
                     previous, target = self._params(item[1], item[2], item[3], previous)
-                    yield FrameAnalysis(item[0], item[1], previous, target)
+                    yield FrameAnalysis(item[0], item[1], previous, target, item[4])
                 pending = []
                 continue
             previous, target = self._params(pose, aligned, still, previous)
-            yield FrameAnalysis(landmarks, pose, previous, target)
+            yield FrameAnalysis(landmarks, pose, previous, target, frame)
         if pending:
             if all(item[2] is None for item in pending):
                 raise NoFaceError("no face found in any frame")
             self._calibrate(pending)
             for item in pending:
                 previous, target = self._params(item[1], item[2], item[3], previous)
-                yield FrameAnalysis(item[0], item[1], previous, target)
+                yield FrameAnalysis(item[0], item[1], previous, target, item[4])
 
     def _align(self, landmarks: np.ndarray) -> tuple[Pose, np.ndarray]:
         points = image_to_face_axes(landmarks)
@@ -195,14 +196,14 @@ class FaceAnalyser:
     def _ready(self, pending: list, index: int) -> bool:
         if self._neutral is not None:
             return index >= self._neutral
-        return sum(a is not None for *_, a in pending) >= self._calibration_frames
+        return sum(item[2] is not None for item in pending) >= self._calibration_frames
 
     def _calibrate(self, pending: list) -> None:
-        candidates = [(i, lm, a) for i, (lm, _, a, _) in enumerate(pending) if a is not None]
+        candidates = [(i, lm, a) for i, (lm, _, a, _, _) in enumerate(pending) if a is not None]
         if not candidates:
             raise NoFaceError("no face found in any frame")
         index = choose_rest(candidates, self._neutral)
-        landmarks, pose, aligned, _ = pending[index]
+        landmarks, pose, aligned, _, _ = pending[index]
         self.rest = RestFace(aligned, fapu_ratios(aligned, self._face), index)
         self._rest_pose = pose
 

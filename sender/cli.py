@@ -66,9 +66,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     rate = p.add_mutually_exclusive_group()
     rate.add_argument("--bitrate", type=number(BITRATE[0] / 1000, BITRATE[1] / 1000),
                       metavar="KBPS",
-                      help="aim at this many kbit/s instead of a --quality: the finest level that codes the "
-                           "first second of this call within it (a choice made once, not a cap: livelier "
-                           "talking later costs more)")
+                      help="the stream's rate after its header, in kbit/s, instead of a --quality. With a --face "
+                           "that has a reference picture (fd-enroll's default) the parameters aim at 20 %% of it "
+                           "(at least 1.6 kbit/s) and the rest renews the receiver's picture where the face model "
+                           "cannot show the frame (the picture layer: what a turn, a lean or a moving camera "
+                           "uncovers), the whole kept within 5 %% of the rate over any 2 s; more kbit/s, a better "
+                           "picture. Otherwise the finest quality level that codes the call's first second within "
+                           "it (chosen once: livelier talking later costs more)")
     rate.add_argument("--quality", type=number(*LIMITS["quality"], kind=int), default=default("quality"),
                       metavar="1-5",
                       help="quantiser fineness, 1 (coarse, fewest bits) to 5 (fine); each level halves the "

@@ -48,7 +48,9 @@ class SendConfig:
     receiver interpolates the others; datagrams: the packets go one per UDP datagram, made ready
     for loss and late join by ``protocol.encoder.Datagrams``; rule: the deformation rule
     (``codec.regions.RULES``) the parameters are fitted to and the receiver deforms with, named in
-    the header.
+    the header; picture_layer: with a ``bitrate`` and a face with a reference picture, spend what
+    the parameters leave of it renewing the receiver's picture (sender/picture_layer.py; the
+    parameters then aim at :func:`parameter_rate` of it).
     """
 
     quality: int = DEFAULT_QUALITY
@@ -65,6 +67,7 @@ class SendConfig:
     divisor: int = 1
     datagrams: bool = False
     rule: str = DEFAULT_RULE
+    picture_layer: bool = True
 
     def __post_init__(self) -> None:
         for name, (lo, hi) in LIMITS.items():
@@ -76,6 +79,15 @@ class SendConfig:
         check_rule(self.rule)
         if self.tag_bits not in TAG_BITS:
             raise InputError(f"tag bits must be a multiple of 8 from {TAG_BITS[0]} to {TAG_BITS[-1]}")
+
+
+#: With the picture layer, the parameters aim at this share of the rate, and at least PARAMETER_FLOOR bit/s.
+PARAMETER_SHARE, PARAMETER_FLOOR = 0.2, 1600.0
+
+
+def parameter_rate(bitrate: float) -> float:
+    """bit/s the parameters aim at when the picture layer shares ``bitrate`` with them."""
+    return min(bitrate, max(PARAMETER_FLOOR, PARAMETER_SHARE * bitrate))
 
 
 def default(name: str):

@@ -29,7 +29,8 @@ from facedeform.protocol.stream import (
     stream_size,
 )
 from facedeform.sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
-from facedeform.sender.config import SendConfig
+from facedeform.sender.config import SendConfig, parameter_rate
+from facedeform.sender.picture_layer import PictureLayer
 from facedeform.sender.sources import open_source
 
 
@@ -128,7 +129,10 @@ class SendSession:
         self.analyser = FaceAnalyser(FaceTracker(), model, fps, config.layout, calibration_frames=round(fps),
                                      neutral=config.neutral, smoothing=Smoothing(config.smoothing), rule=config.rule)
         self._face_id = model.content_id
+        self._face = model
         self._model = face.data if face is not None and config.embed_face else b""
+        #: the picture layer (with a bitrate, a face with a reference picture, every frame sent), once the header is
+        self.picture: PictureLayer | None = None
         self._basis: np.ndarray | None = None
         self.sealer = None if config.key is None else SecureSealer(config.key, config.tag_bits)
         self._configure(config.quality)
@@ -144,6 +148,10 @@ class SendSession:
     def sealed(self) -> bool:
         """Packets are sealed (opaque): on a byte stream each needs its sync byte."""
         return self.sealer is not None
+
+    def _picture_layer(self) -> bool:
+        """Whether this call renews the receiver's picture (given a bitrate to do it with)."""
+        return self.config.picture_layer and self._face.picture is not None and self.config.divisor == 1
 
     def _header(self, quality: int) -> Header:
         return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model),
@@ -167,9 +175,12 @@ class SendSession:
                 self._basis = first_basis(self.analyser.names, fps, sample)
             quality = self.header.quality
             if first and bitrate is not None:
-                quality = quality_for_bitrate(self._header, sample, bitrate, self.config.frames_per_packet,
+                aim = parameter_rate(bitrate) if self._picture_layer() else bitrate
+                quality = quality_for_bitrate(self._header, sample, aim, self.config.frames_per_packet,
                                               self.config.dead_zone, 0 if self.sealer is None else self.sealer.overhead)
             self._configure(quality)
+            if bitrate is not None and self._picture_layer():
+                self.picture = PictureLayer(self._face, self.header, bitrate, self.sealed)
             results = chain(first, results)
         for seq, result in enumerate(results):
             if seq == 0:
@@ -184,6 +195,9 @@ class SendSession:
                     self._dump = dump_writer(self._dump_path, len(self.header.names))
                 self._dump.add(**dump_row(result))
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
+            if self.picture is not None and result.frame is not None:
+                packets = self._seal(self.picture.step(seq, result.frame, self.encoder.reconstruction, self.encoder,
+                                                       packets)) + packets
             self.stream_bytes += stream_size(packets, self.sealed)
             if packets:
                 yield packets
@@ -221,6 +235,8 @@ class SendSession:
                 "basis": self.header.basis is not None, "send_every": self.header.divisor,
                 "rest_frame": None if rest is None else rest.index,
                 "tag_bits": None if self.sealer is None else 8 * self.sealer.tag_bytes,
+                "picture_renewals": None if self.picture is None else self.picture.renewals,
+                "picture_bits_per_frame": None if self.picture is None else round(self.picture.bits / max(n, 1), 1),
                 "frames_per_second": round(n / max(time.perf_counter() - self._started, 1e-9), 1)}
 
     def summary(self) -> str:
