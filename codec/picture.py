@@ -231,43 +231,70 @@ class SceneMesh:
             self._open = (mouth_image, np.asarray(mouth_points, dtype=np.float64))
             mouth = np.zeros(len(faces), bool)
         self.rest_pixels = pixels  # of the face and ring vertices in the reference picture
-        self.texture, (self.uv,) = self.textured([(picture.image, pixels)])
+        self.texture, self.uv = self.textured(picture.image)
         self.triangles = np.concatenate([face_triangles, strips]).astype(np.int32)
         self.mouth_faces = np.concatenate([mouth, np.zeros(len(strips), bool)])
         self._rest_area = _areas(np.concatenate([pixels, pixels[self._mouth]]), self.triangles)
+        # the triangles the picture textures (not the open mouth's, nor a drawn cavity), and at rest
+        self._from_picture = ~(self.triangles >= len(pixels)).any(axis=1) & ~self.mouth_faces
+        self._rest_positions = np.concatenate([rest, ring_rest, rest[self._mouth]])
+        self._covered: np.ndarray | None = None
 
-    def textured(self, sources: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, list[np.ndarray]]:
-        """(texture, per source (vertices, 2) uv with v up) that texture the scene's face and ring
-        vertices by each source's image where its pixels ((n, 2), x right, y down) put them: the
-        reference picture at rest, a renewed picture where a frame's scene lay. One source without
-        the person's open mouth is its image as it is; otherwise the images go one below the other,
-        their edges repeated as far as the vertices reach (the clamp an image alone would have, at
-        most half a side), with the open mouth below them all."""
-        height, width = sources[0][0].shape[:2]
-        if self._open is None and len(sources) == 1:
-            pixels = sources[0][1]
-            return sources[0][0], [np.column_stack([pixels[:, 0] / width, 1.0 - pixels[:, 1] / height])]
-        blocks, placed, top = [], [], 0
-        for image, pixels in sources:
-            lo, hi = _padding(pixels, (width, height), max(width, height) // 2)
-            padded = cv2.copyMakeBorder(image, lo[1], hi[1], lo[0], hi[0], cv2.BORDER_REPLICATE)
-            blocks.append((top, padded))
-            placed.append(np.clip(pixels + lo, 0, [padded.shape[1], padded.shape[0]]) + [0.0, top])
-            top += padded.shape[0] + MOUTH_GAP
-        mouth_image, mouth_points = self._open if self._open is not None else (np.zeros((1, 1, 3), np.uint8),
-                                                                               np.zeros((0, 2)))
-        atlas = np.zeros((top + mouth_image.shape[0], max(max(b.shape[1] for _, b in blocks),
-                                                          mouth_image.shape[1]), 3), np.uint8)
-        for at, padded in blocks:
-            atlas[at:at + padded.shape[0], :padded.shape[1]] = padded
-        atlas[top:, :mouth_image.shape[1]] = mouth_image
+    def textured(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(texture, (vertices, 2) uv with v up) that texture the scene by ``image``, a picture in the
+        reference picture's place (the reference itself, or it renewed). With the person's open
+        mouth, it goes below the picture in one texture, the picture's edges repeated as far as
+        the rings reach (the clamp the picture alone would have), at most half a side."""
+        height, width = image.shape[:2]
+        pixels = self.rest_pixels
+        if self._open is None:
+            return image, np.column_stack([pixels[:, 0] / width, 1.0 - pixels[:, 1] / height])
+        lo, hi = _padding(pixels, (width, height), max(width, height) // 2)
+        padded = cv2.copyMakeBorder(image, lo[1], hi[1], lo[0], hi[0], cv2.BORDER_REPLICATE)
+        mouth_image, mouth_points = self._open
+        below = padded.shape[0] + MOUTH_GAP
+        atlas = np.zeros((below + mouth_image.shape[0], max(padded.shape[1], mouth_image.shape[1]), 3), np.uint8)
+        atlas[:padded.shape[0], :padded.shape[1]], atlas[below:, :mouth_image.shape[1]] = padded, mouth_image
+        placed = np.concatenate([np.clip(pixels + lo, 0, [padded.shape[1], padded.shape[0]]),
+                                 mouth_points + [0.0, below]])
         height, width = atlas.shape[:2]
-        return atlas, [np.column_stack([p[:, 0] / width, 1.0 - p[:, 1] / height])
-                       for p in (np.concatenate([q, mouth_points + [0.0, top]]) for q in placed)]
+        return atlas, np.column_stack([placed[:, 0] / width, 1.0 - placed[:, 1] / height])
 
     def pixels(self, positions: np.ndarray) -> np.ndarray:
         """(n, 2) pixels (x right, y down) of the face and ring vertices among :meth:`positions`."""
         return (positions[:len(positions) - len(self._mouth)] * _FLIP)[:, :2]
+
+    def carry_back(self, image: np.ndarray, positions: np.ndarray, seen: np.ndarray, elsewhere: np.ndarray,
+                   camera) -> np.ndarray:
+        """``image`` ((H, W, 3) uint8, a frame's picture-sized data, its scene at ``positions``) carried
+        back to the reference picture's place: through each triangle of the scene that the frame
+        showed (``seen``) onto where it lies at rest, values as they are (linear); where no scene
+        triangle lies at rest, ``elsewhere`` (the same carried by the background's motion); 128
+        on the triangles the frame did not show."""
+        from facedeform.codec.render import Material, Renderer
+
+        height, width = image.shape[:2]
+        covered = self._covers((width, height), camera)
+        base = np.where(covered[..., None], np.uint8(128), elsewhere)
+        drawn = np.flatnonzero(seen & self._from_picture)
+        if not len(drawn):
+            return base
+        pixels = self.pixels(positions)
+        uv = np.column_stack([pixels[:, 0] / width, 1.0 - pixels[:, 1] / height])
+        carry = Renderer(self.triangles[drawn], size=(width, height), material=Material(ambient=1.0, specular=0.0),
+                         lights=(), background=base, uv=np.concatenate([uv, uv[self._mouth]]), texture=image,
+                         linear=True)
+        return carry.render(self._rest_positions, camera)[0]
+
+    def _covers(self, size: tuple[int, int], camera) -> np.ndarray:
+        """(H, W) bool: the pixels of the reference picture that a triangle the picture textures covers at rest."""
+        if self._covered is None or self._covered.shape != size[::-1]:
+            from facedeform.codec.render import Renderer
+
+            depth = Renderer(self.triangles[self._from_picture], size=size, lights=()).render(
+                self._rest_positions, camera)[1]
+            self._covered = np.isfinite(depth)
+        return self._covered
 
     def seen(self, positions: np.ndarray, depth: np.ndarray, nearest: np.ndarray) -> np.ndarray:
         """(triangles,) bool: which scene triangles a frame with these ``positions`` (picture axes)

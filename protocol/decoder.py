@@ -84,7 +84,7 @@ class PacketDecoder:
         self._out = 0  # next output frame number
         self._last: tuple[int, np.ndarray, bool] | None = None  # coded index, params, face of the last decoded
         self._model = bytearray()
-        self._picture: tuple[int, int, bytearray] | None = None  # (frame, total bytes, bytes so far) of a renewal
+        self._picture: tuple[int, int, bytearray, bool] | None = None  # (frame, total, bytes so far, whole)
         self._previous = b""
         #: Bytes of input (junk and damage included) before the packet being read: its callers set it.
         self.position = 0
@@ -320,6 +320,7 @@ class PacketDecoder:
         """A piece of a renewal of the picture: pieces come in order, one renewal at a time (a new
         frame's first piece drops an unfinished one); the whole renewal is one event."""
         frame, pos = _varint_or_fail(body, 0, MAX_FRAME)
+        whole, pos = _varint_or_fail(body, pos, 1)
         total, pos = _varint_or_fail(body, pos, MAX_PICTURE)
         offset, pos = _varint_or_fail(body, pos, MAX_PICTURE)
         piece = body[pos:]
@@ -330,14 +331,14 @@ class PacketDecoder:
             self.stats.duplicates += 1
             return []
         if offset == 0:
-            held = self._picture = (frame, total, bytearray())
-        if held is None or (held[0], held[1], len(held[2])) != (frame, total, offset):
+            held = self._picture = (frame, total, bytearray(), bool(whole))
+        if held is None or (held[0], held[1], len(held[2]), held[3]) != (frame, total, offset, bool(whole)):
             return []  # a piece of a renewal whose start was lost: it cannot be used
         held[2].extend(piece)
         if len(held[2]) < total:
             return []
         self._picture = None
-        return [Picture(frame * self.header.divisor, bytes(held[2]))]
+        return [Picture(frame * self.header.divisor, bytes(held[2]), held[3])]
 
     def _on_end(self, body: bytes, size: int) -> list | None:
         divisor = self.header.divisor

@@ -78,10 +78,11 @@ class PacketEncoder:
                   for i in range(0, len(self._model), MODEL_CHUNK)]
         return [build(HEADER, encode_header(self._h))] + chunks
 
-    def picture(self, frame: int, data: bytes) -> list[bytes]:
+    def picture(self, frame: int, data: bytes, whole: bool = False) -> list[bytes]:
         """The picture layer's packets of a renewal of the picture for frame ``frame`` (a frame
-        number, of the frames given to :meth:`frame`): to go before the packet that carries it."""
-        head = varint(frame // self._h.divisor) + varint(len(data))
+        number, of the frames given to :meth:`frame`; ``whole``: the picture itself, else a
+        residual): to go before the packet that carries it."""
+        head = varint(frame // self._h.divisor) + varint(int(whole)) + varint(len(data))
         return [build(PICTURE, head + varint(i) + data[i:i + PICTURE_PIECE])
                 for i in range(0, len(data), PICTURE_PIECE)]
 

@@ -29,10 +29,12 @@ class Model:
 
 @dataclass(frozen=True)
 class Picture:
-    """A renewal of the picture for frame ``seq`` (the picture layer: its own format, codec/renewal.py)."""
+    """A renewal of the picture for frame ``seq`` (the picture layer: its own format, codec/renewal.py):
+    the picture itself when ``whole``, else a residual over what the receiver draws."""
 
     seq: int
     data: bytes
+    whole: bool = False
 
 
 @dataclass(frozen=True)

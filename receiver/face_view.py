@@ -120,12 +120,15 @@ class PictureView(FaceView):
     picture and its projection scaled to it), the picture moved by the frame's global motion (the
     camera's). Unlit: the picture's own light.
 
-    The picture layer renews it (:meth:`renew`): a residual over what this view draws of frame
-    k, coded by the sender, which runs this same view on what it sends (sender/picture_layer.py),
-    so both ends draw the same pixels. Frame k's picture plus the residual becomes the picture
-    drawn from frame k on: the background outright, and every triangle of the face and its rings
-    that frame k showed well (``SceneMesh.seen``), so that what the reference never saw (a
-    turned head's far side, a shirt, the background a camera uncovers) is shown.
+    The picture layer renews it (:meth:`renew`): a residual over what this view draws of frame k
+    (or now and then frame k's whole picture, which brings a receiver that missed renewals back
+    in step), coded by the sender, which runs this same view on what it sends
+    (sender/picture_layer.py), so both ends draw the same pixels. The residual is carried back
+    into the reference picture's own place, through the scene mesh for every triangle that frame
+    k showed well (``SceneMesh.seen``) and through the global motion for the background, and
+    added there: the picture drawn from then on is the reference so corrected, never resampled,
+    so that what it never saw (a turned head's far side, a shirt, the background a camera
+    uncovers) is shown without the picture going soft.
     """
 
     def _setup(self, face: BaseFace, size: tuple[int, int], textured: bool) -> None:
@@ -144,18 +147,12 @@ class PictureView(FaceView):
         self._picture, self._picture_size, self._still = picture.image, (width, height), background
         self.picture_size = self._picture_size
         self._moved: np.ndarray | None = None  # the global motion the renderer's background has
-        self._source_motion: np.ndarray | None = None  # the global motion of the picture drawn (renewed)
         self._renderer = Renderer(self._scene.triangles, size=size, material=UNLIT, lights=(), background=background,
                                   uv=self._scene.uv, texture=self._scene.texture, mouth_faces=self._scene.mouth_faces)
         self._camera = _picture_camera(size)
         self._seq = -1
-        self._renewal: tuple[int, np.ndarray] | None = None  # (frame, residual) to apply when it is drawn
-        # after a renewal: the scene drawn as a triangle soup, each triangle textured by the newest
-        # picture that showed it (the reference, or one of the MEMORY - 1 latest renewals)
-        self._sources: list[tuple[np.ndarray, np.ndarray]] = [(picture.image, self._scene.rest_pixels)]
-        self._source_of = np.zeros(len(self._scene.triangles), np.int64)
-        self._soup = False
-        self._at_picture: Renderer | None = None  # the same scene at the picture's size, when the output's differs
+        self._renewal: tuple[int, np.ndarray, bool] | None = None  # (frame, image, whole) to apply when drawn
+        self._at_picture: Renderer | None = None  # the scene at the picture's size, when the output's differs
 
     def render(self, params: np.ndarray, seq: int | None = None) -> np.ndarray:
         """The picture of frame ``seq`` (None: the one after the last), renewed first if a renewal
@@ -165,17 +162,18 @@ class PictureView(FaceView):
         self._move_background(still)
         if self._renewal is not None and self._renewal[0] <= self._seq:
             if self._renewal[0] == self._seq:
-                self._renew(positions, still, self._renewal[1])
+                self._renew(positions, still, *self._renewal[1:])
             self._renewal = None
-        return self._draw(self._renderer, positions * self._scale, self._camera)[0]
+        return self._renderer.render(positions * self._scale, self._camera)[0]
 
-    def renew(self, frame: int, residual: np.ndarray) -> None:
-        """Renew the picture when frame ``frame`` is drawn by ``residual`` ((h, w, 3) uint8 RGB, any
-        size up to the picture's, scaled to it): half the frame's difference from what this view
-        draws of it, offset by 128 (:func:`residual_of`). Ignored if a later frame was drawn already
-        (the sender renews the frame it just drew, which it then draws again)."""
+    def renew(self, frame: int, image: np.ndarray, whole: bool = False) -> None:
+        """Renew the picture when frame ``frame`` is drawn by ``image`` ((h, w, 3) uint8 RGB, any
+        size up to the picture's, scaled to it): with ``whole`` the frame's picture itself, else
+        half its difference from what this view draws of it, offset by 128 (:func:`residual_of`).
+        Ignored if a later frame was drawn already (the sender renews the frame it just drew,
+        which it then draws again)."""
         if frame >= self._seq:
-            self._renewal = (frame, residual)
+            self._renewal = (frame, image, whole)
 
     def _placed(self, full: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """(scene vertex positions in picture axes, the frame's global motion map or None) for ``full``."""
@@ -187,67 +185,49 @@ class PictureView(FaceView):
         still = global_matrix(full[_GLOBAL], self._scene.reference, self._picture_size)
         return self._scene.positions(deformed, frame, still), still
 
-    def _draw(self, renderer: Renderer, positions: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-        """(picture, depth) of the scene at ``positions``, as ``renderer`` takes them (one vertex per
-        triangle corner once the scene is a soup)."""
-        return renderer.render(positions[self._scene.triangles.ravel()] if self._soup else positions, camera)
-
-    def _renew(self, positions: np.ndarray, still: np.ndarray | None, residual: np.ndarray) -> None:
+    def _renew(self, positions: np.ndarray, still: np.ndarray | None, coded: np.ndarray, whole: bool) -> None:
+        """Adds the renewal of the frame at ``positions`` (global motion ``still``) to the picture."""
         import cv2
 
         size = self._picture_size
-        renderer = self._renderer if self.size == size else self._picture_renderer()
-        drawn, nearest = self._draw(renderer, positions, _picture_camera(size))
-        if residual.shape[1::-1] != size:
-            residual = cv2.resize(residual, size, interpolation=cv2.INTER_LINEAR)
-        image = np.clip(drawn + 2 * (residual.astype(np.int16) - 128), 0, 255).astype(np.uint8)
-        use = self._scene.seen(positions, 8.0 * max(size) - positions[:, 2], nearest)
-        kept = self._source_of > (0 if len(self._sources) < MEMORY else 1)
-        self._source_of = np.where(use, len(self._sources), np.where(kept, self._source_of, 0))
-        if len(self._sources) == MEMORY:
-            self._sources.pop(1)
-            self._source_of = np.maximum(self._source_of - (self._source_of > 0), 0)
-        self._sources.append((image, self._scene.pixels(positions)))
-        texture, uvs = self._scene.textured(self._sources)
-        uv = np.stack(uvs)[self._source_of[:, None], self._scene.triangles].reshape(-1, 2)
-        if not self._soup:
-            self._soup = True
-            soup = np.arange(self._scene.triangles.size).reshape(-1, 3)
-            self._renderer = Renderer(soup, size=self.size, material=UNLIT, lights=(), background=self._still,
-                                      uv=uv, texture=texture, mouth_faces=self._scene.mouth_faces)
-            if self._at_picture is not None:
-                self._at_picture = Renderer(soup, size=size, material=UNLIT, lights=(), background=image, uv=uv,
-                                            texture=texture, mouth_faces=self._scene.mouth_faces)
+        camera = _picture_camera(size)
+        drawn, nearest = (self._renderer if self.size == size else self._picture_renderer()).render(positions, camera)
+        if coded.shape[1::-1] != size:
+            coded = cv2.resize(coded, size, interpolation=cv2.INTER_LINEAR)
+        residual = residual_of(coded, drawn) if whole else coded
+        if still is not None:  # where the background lay in the picture
+            residual_back = cv2.warpAffine(residual, still, size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                           borderMode=cv2.BORDER_CONSTANT, borderValue=(128, 128, 128))
         else:
-            self._renderer.set_texture(uv, texture)
-            if self._at_picture is not None:
-                self._at_picture.set_texture(uv, texture)
+            residual_back = residual
+        seen = self._scene.seen(positions, camera.project(positions, size)[:, 2], nearest)
+        carried = self._scene.carry_back(residual, positions, seen, residual_back, camera)
+        self._picture = np.clip(self._picture + 2 * (carried.astype(np.int16) - 128), 0, 255).astype(np.uint8)
+        texture, uv = self._scene.textured(self._picture)
+        self._renderer.set_texture(uv, texture)
+        if self._at_picture is not None:
+            self._at_picture.set_texture(uv, texture)
         w, h = self.size
-        self._picture, self._source_motion, self._moved = image, still, _UNSET
-        self._still = image if (w, h) == size else cv2.resize(image, (w, h))
+        self._still = self._picture if (w, h) == size else cv2.resize(self._picture, (w, h))
+        self._moved = _UNSET
         self._move_background(still)
 
     def _picture_renderer(self) -> Renderer:
-        """The scene drawn at the reference picture's size (a renewal is measured there, whatever the output)."""
-        if self._at_picture is None:
-            faces = np.arange(self._scene.triangles.size).reshape(-1, 3) if self._soup else self._scene.triangles
-            texture, uvs = self._scene.textured(self._sources)
-            uv = np.stack(uvs)[self._source_of[:, None], self._scene.triangles].reshape(-1, 2) if self._soup \
-                else self._scene.uv
-            self._at_picture = Renderer(faces, size=self._picture_size, material=UNLIT, lights=(),
-                                        background=self._picture, uv=uv,
-                                        texture=texture if self._soup else self._scene.texture,
-                                        mouth_faces=self._scene.mouth_faces)
-        relative = _relative(self._moved if self._moved is not _UNSET else None, self._source_motion)
+        """The scene drawn at the reference picture's size (a renewal is measured there, whatever
+        the output's), over the picture moved as the output's background is."""
         import cv2
 
-        self._at_picture.set_background(self._picture if relative is None else cv2.warpAffine(
-            self._picture, relative, self._picture_size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+        if self._at_picture is None:
+            texture, uv = self._scene.textured(self._picture)
+            self._at_picture = Renderer(self._scene.triangles, size=self._picture_size, material=UNLIT, lights=(),
+                                        uv=uv, texture=texture, mouth_faces=self._scene.mouth_faces)
+        moved = None if self._moved is _UNSET else self._moved
+        self._at_picture.set_background(self._picture if moved is None else cv2.warpAffine(
+            self._picture, moved, self._picture_size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
         return self._at_picture
 
     def _move_background(self, still: np.ndarray | None) -> None:
-        """The picture drawn (the reference, or the last renewed one) moved by ``still`` from where it
-        was taken (pixel maps, None: not moved, so a still camera leaves it bit-exact) as the
+        """The picture moved by ``still`` (a pixel map, None: the picture as it is, bit-exact) as the
         renderer's background, warped once per change of the global motion."""
         import cv2
 
@@ -255,18 +235,16 @@ class PictureView(FaceView):
                 still is not None and self._moved is not None and np.array_equal(still, self._moved))):
             return
         self._moved = still
-        relative = _relative(still, self._source_motion)
-        if relative is None:
+        if still is None:
             self._renderer.set_background(self._still)
             return
         w, h = self.size
-        scaled = np.diag([w / self._picture_size[0], h / self._picture_size[1]]) @ relative
+        scaled = np.diag([w / self._picture_size[0], h / self._picture_size[1]]) @ still
         self._renderer.set_background(cv2.warpAffine(self._picture, scaled, (w, h), flags=cv2.INTER_LINEAR,
                                                      borderMode=cv2.BORDER_REPLICATE))
 
 
 UNLIT = Material(ambient=1.0, specular=0.0)  # the picture's own light
-MEMORY = 3  # pictures a renewed scene is textured from: the reference and the latest two renewals
 _UNSET = np.zeros((0, 0))  # the background is not yet that of the picture drawn
 
 
@@ -281,17 +259,3 @@ def _picture_camera(size: tuple[int, int]) -> Camera:
     w, h = size
     reach = 8.0 * max(w, h)
     return Camera.orthographic(h, eye=(w / 2, -h / 2, reach), target=(w / 2, -h / 2, 0.0), near=1.0, far=2 * reach)
-
-
-def _relative(still: np.ndarray | None, source: np.ndarray | None) -> np.ndarray | None:
-    """The (2, 3) pixel map from a picture taken under global motion ``source`` to a frame under
-    ``still`` (each from the reference picture; None: no motion), None when they are the same."""
-    if source is None:
-        return still
-    if still is not None and np.array_equal(still, source):
-        return None
-    inverse = np.linalg.inv(source[:, :2])
-    back = np.column_stack([inverse, -inverse @ source[:, 2]])
-    if still is None:
-        return back
-    return np.column_stack([still[:, :2] @ back[:, :2], still[:, :2] @ back[:, 2] + still[:, 2]])

@@ -125,7 +125,7 @@ class ReceiveSession:
             self._warn(f"damaged picture renewal at frame {event.seq}: left out")
             return
         self.renewals += 1
-        view.renew(event.seq, residual)
+        view.renew(event.seq, residual, event.whole)
 
     def _start(self, header: Header) -> None:
         self._header = header

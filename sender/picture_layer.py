@@ -28,6 +28,15 @@ MARGIN = 1.05
 PACKING = 16  # bytes a renewal's packet adds to its image (sync, type, length, numbers, check)
 MIN_RENEWAL = 60  # bytes: the smallest WebP worth sending
 SHARP = 45.0  # dB: a picture this close to the frame is not renewed
+#: A renewal is sent only if it brings the frame's picture at least this many dB closer to the
+#: frame: below it, a renewal's coding noise costs about what it corrects, and adds up (a still
+#: speaker's picture went from VMAF 30 to 10 at 4 kbit/s when every renewal was sent).
+GAIN = 1.0
+#: Over datagrams, seconds after which a renewal is the whole picture again, not a residual: a
+#: receiver that joined late or lost a renewal draws what the sender does from then on. Byte
+#: streams (files, pipes, TCP) lose nothing and start at the beginning, so they never pay for it
+#: (a whole picture shows less than a residual for its bytes: 0.7-1.1 dB on pcavs_Pose_Source).
+WHOLE_EVERY = 1.0
 
 
 class PictureLayer:
@@ -36,10 +45,12 @@ class PictureLayer:
 
     :meth:`step` takes each frame after the encoder coded it and returns the picture layer's
     packets to send before that frame's packets; ``sealed``: packets are sealed (each costs a
-    sync byte more on a byte stream). :attr:`picture` is what the receiver draws of the frame.
+    sync byte more on a byte stream); ``datagrams``: they go over a lossy link (WHOLE_EVERY).
+    :attr:`picture` is what the receiver draws of the frame.
     """
 
-    def __init__(self, face: BaseFace, header: Header, bitrate: float, sealed: bool = False) -> None:
+    def __init__(self, face: BaseFace, header: Header, bitrate: float, sealed: bool = False,
+                 datagrams: bool = False) -> None:
         if face.picture is None:
             raise ValueError("the picture layer needs a face with a reference picture")
         height, width = face.picture.image.shape[:2]
@@ -53,6 +64,8 @@ class PictureLayer:
         self._parameter_bits = 0.0  # the parameters' bits per frame, a running mean
         self._saved = 0.0  # bits the layer may spend now
         self._period = PERIOD * header.fps  # frames
+        self._whole_every = WHOLE_EVERY * header.fps if datagrams else None
+        self._last_whole = 0  # the frame of the last whole renewal (none before the call starts)
         self.picture: np.ndarray | None = None
         self.renewals = self.bits = 0
 
@@ -73,11 +86,18 @@ class PictureLayer:
             rgb = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)
             if rgb.shape[1::-1] != self.size:
                 rgb = cv2.resize(rgb, self.size, interpolation=cv2.INTER_AREA)
-            if _psnr(drawn, rgb) < SHARP:
-                data = encode_renewal(residual_of(rgb, drawn), int(budget / 8) - PACKING)
+            before = _psnr(drawn, rgb)
+            if before < SHARP:
+                whole = self._whole_every is not None and seq - self._last_whole >= self._whole_every
+                data = encode_renewal(rgb if whole else residual_of(rgb, drawn), int(budget / 8) - PACKING)
+                if data is not None and not whole:
+                    coded = decode_renewal(data, self.size).astype(np.int16)
+                    after = np.clip(drawn + 2 * (coded - 128), 0, 255)
+                    data = data if _psnr(after, rgb) >= before + GAIN else None
                 if data is not None:
-                    packets = encoder.picture(seq, data)
-                    self._view.renew(seq, decode_renewal(data, self.size))
+                    packets = encoder.picture(seq, data, whole)
+                    self._last_whole = seq if whole else self._last_whole
+                    self._view.renew(seq, decode_renewal(data, self.size), whole)
                     drawn = self._view.render(params, seq)
                     self.renewals += 1
         bits = 8 * stream_size(packets, self._sealed)

@@ -180,7 +180,7 @@ class SendSession:
                                               self.config.dead_zone, 0 if self.sealer is None else self.sealer.overhead)
             self._configure(quality)
             if bitrate is not None and self._picture_layer():
-                self.picture = PictureLayer(self._face, self.header, bitrate, self.sealed)
+                self.picture = PictureLayer(self._face, self.header, bitrate, self.sealed, self.config.datagrams)
             results = chain(first, results)
         for seq, result in enumerate(results):
             if seq == 0:

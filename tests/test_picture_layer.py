@@ -8,7 +8,7 @@ import pytest
 import facedeform
 from facedeform.codec.renewal import decode_renewal, encode_renewal
 from facedeform.protocol.framing import PICTURE, SYNC, build, packet_size, packet_type, varint
-from facedeform.protocol.stream import Frame, Picture, StreamDecoder, frame_bytes
+from facedeform.protocol.stream import DatagramDecoder, Frame, Picture, StreamDecoder, frame_bytes
 from facedeform.receiver.face_view import PictureView
 from facedeform.sender import picture_layer
 from facedeform.sender.config import SendConfig
@@ -74,16 +74,19 @@ def test_the_receiver_draws_what_the_sender_reconstructed_bit_for_bit(face, call
         np.testing.assert_array_equal(mine, theirs)
 
 
-def test_the_layer_renews_towards_the_frame(face, call):
-    chunks, pictures, _ = call
-    model_only = list(facedeform.decode([c for c in packets_of(b"".join(chunks))
-                                         if not c.startswith(bytes([SYNC, PICTURE << 5]))], face))
+def test_the_layer_shows_what_the_model_cannot(face):
+    """The light goes up after the first second: the model-only picture stays as it was, the
+    picture layer brings it most of the way to the frames."""
     frames = [f[..., ::-1] for f in facedeform.sender.sources.VideoSource(CLIP).frames()]
+    lit = [f if i < 25 else np.clip(f.astype(np.int16) + 40, 0, 255).astype(np.uint8) for i, f in enumerate(frames)]
 
-    def error(drawn):
-        return np.mean([np.mean((a.astype(float) - b) ** 2) for a, b in zip(drawn, frames)])
+    def error(kbps=None):
+        options = {} if kbps is None else {"bitrate": kbps * 1000}
+        drawn = list(facedeform.decode(facedeform.encode(iter(lit), face, embed_face=False, **options), face))
+        return np.mean([np.mean((a.astype(float) - b) ** 2) for a, b in zip(drawn[40:], lit[40:])])
 
-    assert error(pictures) < 0.8 * error(model_only)
+    model_only, layered = error(), error(RATE)
+    assert layered < 0.25 * model_only
 
 
 def test_without_its_picture_layer_a_stream_decodes_to_the_model_only_picture(face, call):
@@ -136,8 +139,9 @@ def test_renewals_larger_than_the_picture_or_not_webp_are_refused_before_decodin
 
 
 @pytest.mark.parametrize("body", [
-    varint(3) + varint(1 << 30) + varint(0) + b"x",  # a renewal larger than any
-    varint(3) + varint(10) + varint(8) + b"xyz",  # past its own end
+    varint(3) + varint(0) + varint(1 << 30) + varint(0) + b"x",  # a renewal larger than any
+    varint(3) + varint(0) + varint(10) + varint(8) + b"xyz",  # past its own end
+    varint(3) + varint(7) + varint(1) + varint(0) + b"x",  # neither a residual nor a whole picture
     varint(3),  # ends inside its numbers
 ])
 def test_absurd_picture_packets_are_damage_not_memory(face, call, body):
@@ -157,7 +161,7 @@ def test_a_bomb_in_a_renewal_is_one_report_and_the_face_goes_on(face, call):
     chunks, _, _ = call
     stream = b"".join(chunks)
     bomb = webp_header_only(16000, 16000)
-    hostile = stream[:len(chunks[0])] + build(PICTURE, varint(5) + varint(len(bomb)) + varint(0) + bomb) \
+    hostile = stream[:len(chunks[0])] + build(PICTURE, varint(5) + varint(0) + varint(len(bomb)) + varint(0) + bomb) \
         + stream[len(chunks[0]):]
     reports = []
     frames = list(facedeform.decode(hostile, face, size=(64, 64), on_damage=reports.append))
@@ -181,3 +185,41 @@ def test_without_a_bitrate_or_with_the_layer_off_nothing_changes(face):
     for stream in (plain, off):
         decoder = StreamDecoder()
         assert not any(isinstance(e, Picture) for e in decoder.feed(stream) + decoder.close())
+
+
+def test_over_datagrams_a_lost_renewal_is_made_good_by_the_next_whole_one(face):
+    """A receiver that lost a renewal draws otherwise than the sender until the next whole renewal
+    (one a second over datagrams), and then as it again, where the frame showed the scene."""
+    pictures: list[np.ndarray] = []
+    original = picture_layer.PictureLayer.step
+
+    def step(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        pictures.append(self.picture.copy())
+        return out
+
+    picture_layer.PictureLayer.step = step
+    try:
+        session = SendSession(str(CLIP), SendConfig(bitrate=RATE * 1000, embed_face=False, datagrams=True), face=face)
+        datagrams = [d for packets in session.packets() for d in packets]
+    finally:
+        picture_layer.PictureLayer.step = original
+    decoder = DatagramDecoder()
+    events = [e for d in datagrams for e in decoder.receive(d)]
+    renewals = [e for e in events if isinstance(e, Picture)]
+    wholes = [e.seq for e in renewals if e.whole]
+    lost = next(e for e in renewals if not e.whole and e.seq < wholes[-1])
+    view = PictureView(events[0], face.model, (360, 288))
+    drawn = {}
+    for event in events:
+        if isinstance(event, Picture) and event is not lost:
+            view.renew(event.seq, decode_renewal(event.data, view.picture_size), event.whole)
+        elif isinstance(event, Frame):
+            drawn[event.seq] = view.render(event.params, event.seq).copy()
+
+    def psnr(seq):
+        return 10 * np.log10(255 ** 2 / max(np.mean((drawn[seq].astype(float) - pictures[seq]) ** 2), 1e-10))
+
+    resync = next(w for w in wholes if w > lost.seq)
+    assert psnr(lost.seq) < 60 and psnr(resync - 1) < 60  # out of step from the lost renewal on
+    assert psnr(resync) > psnr(resync - 1) + 3 and psnr(resync) > 35
