@@ -1,6 +1,7 @@
 """The picture layer: renewals of the receiver's picture under a rate, in a closed loop."""
 
 import tracemalloc
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -23,9 +24,10 @@ def face():
     return facedeform.enroll(str(CLIP), motion_seconds=2.0)
 
 
-@pytest.fixture(scope="module")
-def call(face):
-    """(stream chunks, the sender's own picture of every frame, bits of each frame's packets) at RATE."""
+@contextmanager
+def sender_pictures():
+    """The sender's own picture of every frame (what its picture layer reconstructs), as a list
+    filled while the context lasts."""
     pictures: list[np.ndarray] = []
     original = picture_layer.PictureLayer.step
 
@@ -36,6 +38,15 @@ def call(face):
 
     picture_layer.PictureLayer.step = step
     try:
+        yield pictures
+    finally:
+        picture_layer.PictureLayer.step = original
+
+
+@pytest.fixture(scope="module")
+def call(face):
+    """(stream chunks, the sender's own picture of every frame, bits of each frame's packets) at RATE."""
+    with sender_pictures() as pictures:
         session = SendSession(str(CLIP), SendConfig(bitrate=RATE * 1000, embed_face=False), face=face)
         chunks, bits, sent = [], [], 0
         for packets in session.packets():
@@ -46,8 +57,6 @@ def call(face):
                 bits += [0] * (session.frame_count - len(bits))
                 bits[-1] += total - sent
                 sent = total
-    finally:
-        picture_layer.PictureLayer.step = original
     assert session.stats()["picture_renewals"] > 0
     return chunks, pictures, np.array(bits)
 
@@ -190,20 +199,9 @@ def test_without_a_bitrate_or_with_the_layer_off_nothing_changes(face):
 def test_over_datagrams_a_lost_renewal_is_made_good_by_the_next_whole_one(face):
     """A receiver that lost a renewal draws otherwise than the sender until the next whole renewal
     (one a second over datagrams), and then as it again, where the frame showed the scene."""
-    pictures: list[np.ndarray] = []
-    original = picture_layer.PictureLayer.step
-
-    def step(self, *args, **kwargs):
-        out = original(self, *args, **kwargs)
-        pictures.append(self.picture.copy())
-        return out
-
-    picture_layer.PictureLayer.step = step
-    try:
+    with sender_pictures() as pictures:
         session = SendSession(str(CLIP), SendConfig(bitrate=RATE * 1000, embed_face=False, datagrams=True), face=face)
         datagrams = [d for packets in session.packets() for d in packets]
-    finally:
-        picture_layer.PictureLayer.step = original
     decoder = DatagramDecoder()
     events = [e for d in datagrams for e in decoder.receive(d)]
     renewals = [e for e in events if isinstance(e, Picture)]
