@@ -14,35 +14,42 @@ import numpy as np
 from facedeform.codec.image_header import image_size
 
 FORMAT = ".webp"
-SCALES = (1.0, 0.75, 0.5, 0.375, 0.25, 0.125)  # of the picture's size a residual is coded at
+SCALES = (0.125, 0.25, 0.375, 0.5, 0.75, 1.0)  # of the picture's size a residual is coded at
 MIN_SIDE = 8  # pixels
 
 
 def encode_renewal(residual: np.ndarray, budget: int) -> bytes | None:
     """The WebP of ``residual`` ((H, W, 3) uint8 RGB) of at most ``budget`` bytes that, scaled back
-    to (W, H), is nearest to it, over SCALES and every quality (bisected per scale); None if
-    nothing fits."""
+    to (W, H), is nearest to it, over SCALES and qualities (bisected per scale); None if
+    nothing fits. Scales are tried from the smallest up, until the coarsest quality does not fit
+    or the result is further than the scale below's."""
     height, width = residual.shape[:2]
     bgr = cv2.cvtColor(residual, cv2.COLOR_RGB2BGR)
     best: tuple[float, bytes] | None = None
     for scale in SCALES:
         size = (max(MIN_SIDE, round(width * scale)), max(MIN_SIDE, round(height * scale)))
         small = bgr if size == (width, height) else cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)
-        lo, hi, fitted = 1, 100, None
+        fitted = _webp(small, 1)
+        if len(fitted) > budget:
+            break
+        lo, hi = 2, 100
         while lo <= hi:
             quality = (lo + hi) // 2
-            data = cv2.imencode(FORMAT, small, [cv2.IMWRITE_WEBP_QUALITY, quality])[1].tobytes()
+            data = _webp(small, quality)
             if len(data) <= budget:
                 fitted, lo = data, quality + 1
             else:
                 hi = quality - 1
-        if fitted is None:
-            continue
         decoded = decode_renewal(fitted, (width, height))
         error = float(np.mean((decoded.astype(np.float32) - residual) ** 2)) if decoded is not None else np.inf
-        if best is None or error < best[0]:
-            best = (error, fitted)
+        if best is not None and error >= best[0]:
+            break  # past the best scale: larger ones get fewer bytes a pixel still
+        best = (error, fitted)
     return None if best is None else best[1]
+
+
+def _webp(bgr: np.ndarray, quality: int) -> bytes:
+    return cv2.imencode(FORMAT, bgr, [cv2.IMWRITE_WEBP_QUALITY, quality])[1].tobytes()
 
 
 def decode_renewal(data: bytes, picture_size: tuple[int, int]) -> np.ndarray | None:
