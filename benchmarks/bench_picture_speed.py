@@ -21,16 +21,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from facedeform.codec.deform import GLOBAL_PARAMS
+from facedeform.codec.face_file import Face
+from facedeform.codec.face_model import ReferencePicture
+from facedeform.codec.picture import Placement
+from facedeform.protocol.stream import Header, steps_for
+from facedeform.receiver.face_view import PictureView
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from facedeform.codec.deform import GLOBAL_PARAMS  # noqa: E402
-from facedeform.codec.face_file import Face  # noqa: E402
-from facedeform.codec.face_model import ReferencePicture  # noqa: E402
-from facedeform.codec.picture import Placement  # noqa: E402
-from facedeform.protocol.stream import Header, steps_for  # noqa: E402
-from facedeform.receiver.face_view import PictureView  # noqa: E402
-
 CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
 
 

@@ -21,15 +21,27 @@ class ArgumentParser(argparse.ArgumentParser):
 
 
 def parse_size(text: str) -> tuple[int, int]:
-    """An argparse type for an output size: ``512`` or ``640x480`` -> (width, height), even numbers."""
+    """An argparse type for an output size: ``640x480`` -> (640, 480), or ``640`` -> (640, 0): the
+    width, the height to keep the picture's proportions (:func:`fitted`). Even numbers: H.264 and
+    Y4M store colour at half the size each way (4:2:0)."""
     try:
         w, _, h = text.lower().partition("x")
-        size = (int(w), int(h or w))
+        size = (int(w), int(h) if h else 0)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not a size: {text!r} (use 512 or 640x480)") from None
-    if not all(16 <= s <= MAX_SIDE and s % 2 == 0 for s in size):
-        raise argparse.ArgumentTypeError(f"size {text!r} out of range (even numbers from 16 to {MAX_SIDE})")
+        raise argparse.ArgumentTypeError(f"not a size: {text!r} (use 640 or 640x480)") from None
+    if not all(16 <= s <= MAX_SIDE and s % 2 == 0 for s in (size if size[1] else size[:1])):
+        raise argparse.ArgumentTypeError(f"size {text!r} out of range (even numbers from 16 to {MAX_SIDE}: "
+                                         "4:2:0 video halves each side for colour)")
     return size
+
+
+def fitted(size: tuple[int, int], natural: tuple[int, int]) -> tuple[int, int]:
+    """``size`` from :func:`parse_size` made whole: a height of 0 becomes the even height that
+    keeps ``natural``'s (width, height) proportions at that width, within the limits."""
+    width, height = size
+    if height:
+        return size
+    return width, min(MAX_SIDE, max(16, 2 * round(width * natural[1] / natural[0] / 2)))
 
 
 def number(lo: float | None = None, hi: float | None = None, kind: type = float) -> Callable[[str], float]:

@@ -14,14 +14,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+import facedeform
 from facedeform.codec.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer
 from facedeform.codec.face_file import Face
 from facedeform.codec.face_model import load_base_face
 from facedeform.codec.picture import SceneMesh, frame_placement
 from facedeform.protocol.stream import Frame, Header, StreamDecoder, steps_for
 from facedeform.receiver.face_view import open_view
+from facedeform.receiver.output import VideoFileWriter
 from facedeform.sender.config import SendConfig
-from facedeform.sender.enroll import main as enroll
 from facedeform.sender.session import SendSession
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -74,15 +75,15 @@ def mesh_figure(face_file: str) -> np.ndarray:
 
 
 def video(path: str, face_file: str, originals: list) -> None:
-    """Every frame: original | whole picture | the paper's shaded face, as an MP4 video."""
+    """Every frame: original | whole picture | the paper's shaded face, as an H.264 MP4 that browsers play."""
     size = originals[0].shape[1], originals[0].shape[0]
     picture, _ = rendered(face_file, "picture", size, None)
     shaded, _ = rendered(None, "shaded", (HEIGHT, HEIGHT), None)
     rows = [np.hstack(row) for row in zip(originals, picture, shaded)]
-    writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"mp4v"), 25.0, rows[0].shape[1::-1])
+    writer = VideoFileWriter(path, 25.0, rows[0].shape[1::-1])
     for row in rows:
-        writer.write(row)
-    writer.release()
+        writer.write(cv2.cvtColor(row, cv2.COLOR_BGR2RGB))
+    writer.close()
     print(f"wrote {path} (original | whole picture | paper's shaded face)")
 
 
@@ -97,7 +98,7 @@ def main() -> None:
     size = originals[0].shape[1], originals[0].shape[0]
     with tempfile.TemporaryDirectory() as tmp:
         face_file = str(Path(tmp) / "me.fdface")
-        enroll([str(CLIP), "-o", face_file, "-q"])
+        facedeform.enroll(str(CLIP)).save(face_file)
         if args.video:
             video(args.video, face_file, originals)
             return

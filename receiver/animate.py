@@ -1,8 +1,9 @@
 """fd-animate: a timed script of expressions in, rendered face video out (the paper's animation).
 
 A script is text, one key per line: a time in seconds, then one or more
-expression names each optionally followed by an intensity, summed
-("1.2 smile 0.6 blink"); '#' starts a comment. Or JSON: a list of
+expression or viseme names or Action Units (AU12), each optionally followed by
+an intensity, summed ("1.2 smile 0.6 blink", "2.0 AU12 0.8 AU6 0.5"); '#'
+starts a comment. Or JSON: a list of
 {"time": s, "expression": name, "intensity": x} or {"time": s, "aus": {AU: x}}.
 Parameters ease between keys (smoothstep: no jump in speed at a key); the
 video lasts until the last key.
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from facedeform.codec.regions import DEFAULT_RULE, RULES
-from facedeform.common.cli import ArgumentParser, check_output, number, parse_size, run_main
+from facedeform.common.cli import ArgumentParser, check_output, fitted, number, parse_size, run_main
 
 MAX_SECONDS = 3600  # an hour of animation: a longer script is a mistake, not a wish
 EPILOG = """script example (samples/animation.txt):
@@ -25,9 +26,10 @@ EPILOG = """script example (samples/animation.txt):
   0.5  smile 0.8
   1.0  smile 0.8 blink
   1.6  AA
+  2.2  AU12 0.8 AU6 0.5
 examples:
   fd-animate samples/animation.txt -o anim.mp4
-  fd-animate samples/animation.txt -o - --size 256 | ffplay -
+  fd-animate samples/animation.txt -o anim.y4m --size 256
 """
 
 
@@ -45,7 +47,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--rule", choices=RULES, default=DEFAULT_RULE,
                    help="deformation rule: refined (default) or paper (the paper's equations exactly)")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary on stderr")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    args.size = fitted(args.size, (1, 1))  # a face alone: square unless both sides are given
+    return args
 
 
 def main(argv=None) -> int:
@@ -91,9 +95,9 @@ def read_script(path: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _line_params(words: list[str], where: str) -> np.ndarray:
-    """Sum of 'name [intensity]' pairs of one text key."""
+    """Sum of 'name [intensity]' pairs of one text key; a name AU<n> is Action Unit n."""
     from facedeform.codec.deform import EXTENDED_PARAMS
-    from facedeform.codec.expressions import expression_params
+    from facedeform.codec.expressions import au_params, expression_params
     from facedeform.common.errors import InputError
 
     if not words:
@@ -103,7 +107,9 @@ def _line_params(words: list[str], where: str) -> np.ndarray:
         intensity = 1.0
         if k + 1 < len(words) and _is_number(words[k + 1]):
             intensity = float(words[k + 1])
-        total = total + expression_params(words[k], intensity)
+        name = words[k]
+        is_au = name.upper().startswith("AU") and name[2:].isdigit()
+        total = total + (au_params({int(name[2:]): intensity}) if is_au else expression_params(name, intensity))
         k += 2 if k + 1 < len(words) and _is_number(words[k + 1]) else 1
     return total
 
@@ -135,7 +141,7 @@ def _run(args) -> int:
     times, keys = read_script(args.script)
     count = int(round(times[-1] * args.fps))
     if args.output == "-" and sys.stdout.isatty():
-        raise InputError("refusing to write video to a terminal: use -o FILE.mp4 or pipe it (| ffplay -)")
+        raise InputError("refusing to write video to a terminal: use -o FILE.mp4")
     face = load_base_face()
     deformer = Deformer(face, args.rule)
     renderer = face_renderer(face, args.size)

@@ -10,10 +10,10 @@ from facedeform.receiver.face_view import LOOKS
 
 EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
-  fd-send talk.mp4 | fd-recv -o - | ffplay -
+  fd-send talk.mp4 | fd-recv --serve :8080 -o out.mp4      (watch at http://127.0.0.1:8080/)
   fd-recv talk.fd -o out.y4m --size 256 --dump decoded.npz
   fd-recv talk.fd --face me.fdface --look face -o face-only.mp4
-  fd-recv --listen udp://:5000 --face me.fdface -o - | ffplay -
+  fd-recv --listen udp://:5000 --face me.fdface --serve :8080
   fd-recv --listen tcp://0.0.0.0:5000 -o call.mp4 --json
   fd-recv --listen udp://:5000 --key call.key -o call.mp4
 """
@@ -31,10 +31,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "tcp://HOST:PORT (one connection); HOST defaults to 127.0.0.1")
     p.add_argument("-o", "--output", metavar="FILE",
                    help="video file (.mp4, .mkv, .mov: H.264), .y4m, or - for Y4M on stdout "
-                        "(default, unless --show or --serve)")
+                        "(default, unless --serve)")
     p.add_argument("--size", type=parse_size, metavar="WxH",
-                   help="output size in pixels, e.g. 512 or 640x480 (default: the source's, as the stream "
-                        "says, else the reference picture's, else 512)")
+                   help="output size in pixels: 640x480, or 640 for that width and the height that keeps the "
+                        "picture's proportions (default: the source's, as the stream says, else the reference "
+                        "picture's, else 512x512); even numbers, as 4:2:0 video halves each side for colour")
     p.add_argument("--look", choices=LOOKS, metavar="LOOK",
                    help="picture: the person's whole reference picture warped by the moving face (default "
                         "when the face model has one); face: their textured face alone (default for a model "
@@ -48,7 +49,6 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--key", metavar="FILE",
                    help="the stream is sealed with this pre-shared key (fd-keygen): packets that fail "
                         "authentication or replay are dropped and counted; also opens a sealed --face file")
-    p.add_argument("--show", action="store_true", help="also show the video in a window (needs a display)")
     p.add_argument("--serve", metavar="HOST:PORT",
                    help="also show the video and the call's statistics in a browser, at http://HOST:PORT/ "
                         "(HOST defaults to 127.0.0.1: --serve :8080); needs no display")
@@ -66,7 +66,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error("give an input file or --listen URL, not both")
     if args.fps is not None and not 0 < args.fps <= 1000:
         p.error("--fps must be above 0 and at most 1000")
-    if args.output is None and not (args.show or args.serve):
+    if args.output is None and not args.serve:
         args.output = "-"
     return args
 
@@ -81,26 +81,26 @@ def _run(args) -> int:
     from facedeform.common.errors import InputError
     from facedeform.common.keys import read_key
     from facedeform.common.progress import progress_for
-    from facedeform.receiver.output import Display, open_writer
+    from facedeform.receiver.output import open_writer
     from facedeform.receiver.session import ReceiveSession
     from facedeform.receiver.transport import Listener, open_file
     from facedeform.receiver.viewer import Viewer, live_stats
 
     if args.output == "-" and sys.stdout.isatty():
-        raise InputError("refusing to write video to a terminal: use -o FILE.mp4 or pipe it (| ffplay -)")
+        raise InputError("refusing to write video to a terminal: use -o FILE.mp4, or --serve :8080 to watch "
+                         "in a browser")
     for option, path in (("-o", args.output), ("--dump", args.dump)):
         if path:
             check_output(path, option, (args.input, args.face))
     key = read_key(args.key) if args.key else None
     face = Face.load(args.face, key).model if args.face else None
-    display = Display() if args.show else None
     viewer = Viewer(args.serve) if args.serve else None
     if viewer and not args.quiet:
         print(f"fd-recv: watch at {viewer.url}", file=sys.stderr, flush=True)
 
     def open_sinks(fps: float, size: tuple[int, int]) -> list:
         sinks = [open_writer(args.output, fps, size, sys.stdout.buffer)] if args.output else []
-        return sinks + [s for s in (display, viewer) if s]
+        return sinks + ([viewer] if viewer else [])
 
     if args.listen:
         from facedeform.codec.render import warm_up

@@ -1,12 +1,10 @@
 """Frame sinks: an H.264 file through PyAV, or YUV4MPEG2 (Y4M) on any binary stream.
 
-Y4M is the plain format that ffplay, ffmpeg, mpv and x264 read from a pipe, so
-``fd-recv -o - | ffplay -`` needs no container.
+Y4M is the plain format that ffmpeg, mpv and x264 read from a pipe
+(``fd-recv -o - | ffmpeg -i - ...``): it needs no container. To watch a call,
+fd-recv --serve shows it in a browser (receiver/viewer.py).
 """
 
-import os
-import re
-import sys
 from fractions import Fraction
 from pathlib import Path
 
@@ -87,33 +85,3 @@ def open_writer(target: str, fps: float, size: tuple[int, int], stdout):
     if suffix in VIDEO_SUFFIXES:
         return VideoFileWriter(target, fps, size)
     raise InputError(f"{target}: unknown output type (use .mp4, .mkv, .mov, .y4m or -)")
-
-
-class Display:
-    """A window showing each (H, W, 3) uint8 RGB frame (``--show``).
-
-    Refused with one line when OpenCV has no GUI backend (the headless build this
-    project depends on) or when there is no display to open a window on.
-    """
-
-    TITLE = "fd-recv"
-
-    def __init__(self) -> None:
-        if re.search(r"^\s*GUI:\s*NONE\s*$", cv2.getBuildInformation(), re.MULTILINE):
-            raise InputError("--show needs OpenCV with a GUI backend; the installed one is headless "
-                             "(watch in a browser instead: --serve 127.0.0.1:8080, or pipe to a player: "
-                             "-o - | ffplay -)")
-        if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-            raise InputError("--show needs a display (DISPLAY is not set): --serve 127.0.0.1:8080 shows "
-                             "the video in a browser")
-        try:
-            cv2.namedWindow(self.TITLE, cv2.WINDOW_AUTOSIZE)
-        except cv2.error:
-            raise InputError("--show: OpenCV cannot open a window here") from None
-
-    def write(self, rgb: np.ndarray) -> None:
-        cv2.imshow(self.TITLE, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-        cv2.waitKey(1)
-
-    def close(self) -> None:
-        cv2.destroyWindow(self.TITLE)

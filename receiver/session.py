@@ -11,6 +11,7 @@ import numpy as np
 
 from facedeform.codec.face_file import decode_face
 from facedeform.codec.face_model import BaseFace, load_base_face
+from facedeform.common.cli import fitted
 from facedeform.common.errors import BitstreamError, InputError
 from facedeform.common.npz import NpzAppender
 from facedeform.common.stages import Sink, StreamSource, View
@@ -26,7 +27,8 @@ class ReceiveSession:
     open_sinks(fps, (width, height)) -> list of objects with write((H, W, 3)
     uint8 RGB) and close(), called once the header gives the rate and the face
     is known; size: output (width, height), None for the source's (the header's),
-    else face_view.output_size's; face: the model the user
+    else face_view.output_size's, a height of 0 for the height that keeps its proportions
+    (common.cli.fitted); face: the model the user
     gave (``--face``), whose id must be the stream's; without it the model the
     stream carries, else the generic face; look: one of face_view.LOOKS, None
     for the most the face allows (face_view.default_look). fps: output rate (None: the
@@ -150,7 +152,8 @@ class ReceiveSession:
         look = self._look or default_look(face)
         if not check_id and face.picture is None and look == "picture":
             look = "shaded"  # the in-band model was lost, and its picture with it
-        size = self._size or output_size(self._header, face, look)
+        natural = output_size(self._header, face, look)
+        size = natural if self._size is None else fitted(self._size, natural)
         self._view = open_view(look, self._header, face, size, check_id)
         self._view.render(np.zeros(len(self._header.names)))  # compile and warm up before frames arrive
         self.face_kind, self.face_id, self.look = kind, face.content_id, look

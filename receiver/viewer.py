@@ -5,7 +5,7 @@ the frames as JPEG over HTTP (``multipart/x-mixed-replace``, which every
 browser plays in an ``<img>``), and polls ``/stats.json``. Only the latest
 frame is kept: a slow browser skips frames instead of queueing them. It needs
 no GUI, so it works with the headless OpenCV the project depends on, where
-``--show`` cannot open a window.
+no window could open (fd-recv has no --show for that reason).
 """
 
 import json

@@ -26,7 +26,7 @@ def test_pipe_gives_one_frame_per_input_frame_at_its_rate(tmp_path):
         rate = float(stream.average_rate)
     assert len(decoded) == clip_frames()
     assert rate == pytest.approx(cv2.VideoCapture(str(CLIP)).get(cv2.CAP_PROP_FPS))
-    assert (decoded[0].width, decoded[0].height) == (256, 256)
+    assert (decoded[0].width, decoded[0].height) == (256, 204)  # 360x288 at 256 wide, its proportions kept
 
 
 def test_sender_dump_has_landmarks_pose_and_params(sent):

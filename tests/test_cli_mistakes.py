@@ -77,3 +77,11 @@ def test_durations_that_are_not_finite_and_positive_are_refused(tool, args, tmp_
     result = run([sys.executable, "-m", tool, *[a.format(tmp=tmp_path) for a in args]])
     assert result.returncode == 2 and "out of range" in result.stderr.decode()
     assert len(result.stderr.decode().strip().splitlines()) == 1
+
+
+def test_sizes_keep_proportions_unless_both_sides_are_given():
+    from facedeform.common.cli import fitted, parse_size
+
+    assert parse_size("640x480") == (640, 480) and fitted((640, 480), (360, 288)) == (640, 480)
+    assert parse_size("256") == (256, 0) and fitted((256, 0), (360, 288)) == (256, 204)
+    assert fitted((640, 0), (1920, 1080)) == (640, 360)

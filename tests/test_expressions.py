@@ -140,3 +140,17 @@ def test_fd_animate_bad_script_one_line_error(tmp_path, capsys, script, message)
     assert main([str(src), "-o", str(tmp_path / "out.y4m")]) == 1
     err = capsys.readouterr().err
     assert err.startswith("fd-animate: ") and message in err and err.count("\n") == 1
+
+
+def test_text_scripts_take_action_units_as_json_does(tmp_path):
+    from facedeform.receiver.animate import read_script
+
+    text, json_twin = tmp_path / "a.txt", tmp_path / "a.json"
+    text.write_text("0 neutral\n1 AU12 0.8 AU6 0.5 blink\n2 smile\n")
+    json_twin.write_text('[{"time": 0, "expression": "neutral"}, {"time": 1, "aus": {"12": 0.8, "6": 0.5}},'
+                         ' {"time": 2, "expression": "smile"}]')
+    times, keys = read_script(str(text))
+    times_json, keys_json = read_script(str(json_twin))
+    np.testing.assert_array_equal(times, times_json)
+    np.testing.assert_allclose(keys[1], keys_json[1] + expression_params("blink"))
+    np.testing.assert_allclose(keys[2], keys_json[2])

@@ -2,7 +2,6 @@
 
 import io
 import re
-import sys
 
 import av
 import numpy as np
@@ -62,13 +61,3 @@ def test_unknown_output_type_is_refused(tmp_path, target):
 def test_unwritable_output_is_refused(tmp_path):
     with pytest.raises(InputError, match="cannot write"):
         open_writer(str(tmp_path / "missing-dir" / "out.y4m"), 25.0, (64, 48), None)
-
-
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="elsewhere a GUI build may open a window")
-def test_show_is_refused_without_a_gui_backend_or_display(monkeypatch):
-    from facedeform.receiver.output import Display
-
-    monkeypatch.delenv("DISPLAY", raising=False)
-    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    with pytest.raises(InputError, match="--show needs"):
-        Display()

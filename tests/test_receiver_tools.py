@@ -5,7 +5,6 @@ Sockets are on loopback only; every wait has a deadline.
 
 import json
 import socket
-import sys
 
 import numpy as np
 import pytest
@@ -119,12 +118,10 @@ def test_port_in_use(capsys, kind):
     assert_one_line(code, err, "cannot listen", url)
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="elsewhere a GUI build may open a window")
-def test_show_without_a_gui_or_display_fails_in_one_line(tmp_path, monkeypatch, capsys):
-    monkeypatch.delenv("DISPLAY", raising=False)
-    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    code, err = run_main(capsys, [str(write_stream(tmp_path / "s.fd")), "--show"])
-    assert_one_line(code, err, "--show")
+def test_a_terminal_is_pointed_to_a_file_or_the_browser(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr("sys.stdout.isatty", lambda: True)
+    code, err = run_main(capsys, [str(write_stream(tmp_path / "s.fd"))])
+    assert_one_line(code, err, "--serve", "-o FILE.mp4")
 
 
 @pytest.mark.parametrize("args, words", [

@@ -102,15 +102,6 @@ def test_the_latest_frame_and_the_stats_are_served():
     viewer.close()  # once is enough; twice does no harm
 
 
-def test_show_without_a_gui_points_to_serve(monkeypatch):
-    from facedeform.receiver.output import Display
-
-    monkeypatch.delenv("DISPLAY", raising=False)
-    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    with pytest.raises(InputError, match="--serve"):
-        Display()
-
-
 @contextlib.contextmanager
 def live_call():
     """fd-recv --listen udp --serve, fed a call of 10 s in real time from a thread: yields the
