@@ -57,7 +57,12 @@ def _draw(ax, rows: list[dict], size: int, metric: str, colours: dict) -> None:
         codec = name.removesuffix(" + one-off")
         ax.plot(x, y, "o--" if name != codec else "o-", color=colours[codec], alpha=0.85, label=name,
                 markersize=4)
+    from matplotlib.ticker import FixedLocator, NullFormatter, ScalarFormatter
+
     ax.set_xscale("log")
+    ax.xaxis.set_major_locator(FixedLocator([0.5, 1, 2, 4, 10, 20, 40, 100, 200, 400]))
+    ax.xaxis.set_major_formatter(ScalarFormatter())
+    ax.xaxis.set_minor_formatter(NullFormatter())  # the minor ticks' own labels overlapped
     ax.set_xlabel("kbit/s (log)")
     ax.set_ylabel(PLOTTED[metric][0])
     ax.grid(True, which="both", alpha=0.3)
