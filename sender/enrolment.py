@@ -90,7 +90,7 @@ def enroll_face(video, frame: int | None = None, seconds: float = 2.0, motion: i
         texture = texture_from_frame(rgb, found.landmarks[:, :2], base.uv, base.faces, texture_size)
     first = decode_face(personal_face(found.aligned, texture, base, picture=ref))
     basis, rings, frames = _learn(video, first, found.index, motion, motion_over, motion_seconds, on_frame)
-    if rings is not None:
+    if rings is not None and ref is not None:
         ref = replace(ref, ring_weights=rings)
     face = Face(personal_face(found.aligned, texture, base, basis, ref))
     return Enrolment(face, found.index, found.score[0], found.score[1],

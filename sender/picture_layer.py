@@ -90,14 +90,14 @@ class PictureLayer:
             if before < SHARP:
                 whole = self._whole_every is not None and seq - self._last_whole >= self._whole_every
                 data = encode_renewal(rgb if whole else residual_of(rgb, drawn), int(budget / 8) - PACKING)
-                if data is not None and not whole:
-                    coded = decode_renewal(data, self.size).astype(np.int16)
-                    after = np.clip(drawn + 2 * (coded - 128), 0, 255)
-                    data = data if _psnr(after, rgb) >= before + GAIN else None
-                if data is not None:
+                coded = None if data is None else decode_renewal(data, self.size)  # as the receiver will
+                if coded is not None and not whole:
+                    after = np.clip(drawn + 2 * (coded.astype(np.int16) - 128), 0, 255)
+                    coded = coded if _psnr(after, rgb) >= before + GAIN else None
+                if data is not None and coded is not None:
                     packets = encoder.picture(seq, data, whole)
                     self._last_whole = seq if whole else self._last_whole
-                    self._view.renew(seq, decode_renewal(data, self.size), whole)
+                    self._view.renew(seq, coded, whole)
                     drawn = self._view.render(params, seq)
                     self.renewals += 1
         bits = 8 * stream_size(packets, self._sealed)

@@ -195,9 +195,9 @@ class SendSession:
                     self._dump = dump_writer(self._dump_path, len(self.header.names))
                 self._dump.add(**dump_row(result))
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
-            if self.picture is not None and result.frame is not None:
-                packets = self._seal(self.picture.step(seq, result.frame, self.encoder.reconstruction, self.encoder,
-                                                       packets)) + packets
+            drawn_from = self.encoder.reconstruction  # what the receiver decodes of this frame
+            if self.picture is not None and result.frame is not None and drawn_from is not None:
+                packets = self._seal(self.picture.step(seq, result.frame, drawn_from, self.encoder, packets)) + packets
             self.stream_bytes += stream_size(packets, self.sealed)
             if packets:
                 yield packets
