@@ -55,6 +55,8 @@ class ReceiveSession:
         self.face_kind: str | None = None
         self.face_id: str | None = None
         self.frames = self.concealed = self.interpolated = self.written = self.renewals = 0
+        #: bytes the source had read when the first frame arrived: the header, an in-band model
+        self.bytes_before_frames = 0
         #: seconds from the arrival of a frame's packet to its output, for the last LATENCY_WINDOW frames
         self.latency: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.latency_max = 0.0
@@ -164,6 +166,8 @@ class ReceiveSession:
         if self._view is None:  # a datagram of the in-band model was lost
             self._warn("the stream's face model did not arrive whole: drawing the generic face")
             self._show(load_base_face(), "generic", check_id=False)
+        if not self.frames and self.source is not None:
+            self.bytes_before_frames = self.source.consumed
         self.frames += 1
         self.concealed += frame.concealed
         self.interpolated += frame.interpolated

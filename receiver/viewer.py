@@ -132,11 +132,13 @@ class Viewer:
 
 
 def live_stats(session, source, started: float) -> Callable[[], dict]:
-    """What /stats.json shows of a call: ``session.stats`` (receiver.session) and the rate
-    received so far in kbit/s (every byte of ``source``, at the stream's frame rate)."""
+    """What /stats.json shows of a call: ``session.stats`` (receiver.session) and the call's rate
+    so far in kbit/s: the bytes of ``source`` since its first frame arrived (the header and an
+    in-band face model before it are one-off, not rate), at the stream's frame rate."""
     def stats() -> dict:
         s = session.stats(time.perf_counter() - started)
-        s["kbit_per_s"] = round(8e-3 * source.consumed * s["fps"] / s["frames"], 2) if s["frames"] else None
+        after = source.consumed - session.bytes_before_frames
+        s["kbit_per_s"] = round(8e-3 * after * s["fps"] / s["frames"], 2) if s["frames"] else None
         return s
 
     return stats
