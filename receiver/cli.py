@@ -39,7 +39,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--look", choices=LOOKS, metavar="LOOK",
                    help="picture: the person's whole reference picture warped by the moving face (default "
                         "when the face model has one); face: their textured face alone (default for a model "
-                        "with a texture only); shaded: the face mesh shaded as in the paper (default for the "
+                        "with a texture only; a model without one, such as the generic face, is drawn as "
+                        "shaded); shaded: the face mesh shaded as in the paper (default for the "
                         "generic face)")
     p.add_argument("--fps", type=float, metavar="N",
                    help="output frame rate (default: the stream's); frames are repeated or dropped to meet it")

@@ -154,6 +154,9 @@ class ReceiveSession:
         look = self._look or default_look(face)
         if not check_id and face.picture is None and look == "picture":
             look = "shaded"  # the in-band model was lost, and its picture with it
+        if look == "face" and face.texture is None and face.picture is None:
+            self._warn("--look face: this face model has no texture, so it is drawn shaded, as --look shaded")
+            look = "shaded"
         natural = output_size(self._header, face, look)
         size = natural if self._size is None else fitted(self._size, natural)
         self._view = open_view(look, self._header, face, size, check_id)

@@ -145,3 +145,9 @@ def test_corrupted_and_foreign_input_are_one_line(tmp_path, capsys):
     cut.write_bytes(cut.read_bytes()[:-20])
     code, err = run_main(capsys, [str(cut), "-o", str(tmp_path / "o.y4m"), "-q"])
     assert_one_line(code, err, "truncated")
+
+
+def test_look_face_without_a_texture_says_it_draws_shaded(tmp_path, capsys):
+    code, err = run_main(capsys, [str(write_stream(tmp_path / "s.fd")), "--look", "face", "-o",
+                                  str(tmp_path / "o.y4m"), "--size", "64", "-q"])
+    assert code == 0 and "drawn shaded" in err
