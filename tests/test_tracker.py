@@ -42,7 +42,7 @@ def frames(path: Path, limit: int | None = None) -> list[np.ndarray]:
 def reference(clip: str) -> dict:
     path = DEV / f"{clip}.landmarks.npz"
     if not path.exists():
-        pytest.skip(f"{path} not available")
+        pytest.skip(f"the dev clips' reference landmarks ({path.name}) are not beside this checkout")
     with np.load(path) as ref:
         return {k: ref[k] for k in ref.files}
 
