@@ -52,7 +52,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "authentication or replay are dropped and counted; also opens a sealed --face file")
     p.add_argument("--serve", metavar="HOST:PORT",
                    help="also show the video and the call's statistics in a browser, at http://HOST:PORT/ "
-                        "(HOST defaults to 127.0.0.1: --serve :8080); needs no display")
+                        "(HOST defaults to 127.0.0.1: --serve :8080); needs no display. A file's or a pipe's "
+                        "last frame stays served until Ctrl-C; a call over --listen ends with the call")
     p.add_argument("--headers", metavar="DIR",
                    help="with --listen udp://: keep each call's stream header in DIR, and start a call whose "
                         "header is there at its first keyframe (a receiver restarted mid-call) instead of "
@@ -101,7 +102,7 @@ def _run(args) -> int:
 
     def open_sinks(fps: float, size: tuple[int, int]) -> list:
         sinks = [open_writer(args.output, fps, size, sys.stdout.buffer)] if args.output else []
-        return sinks + ([viewer] if viewer else [])
+        return sinks + ([_Shown(viewer)] if viewer else [])
 
     if args.listen:
         from facedeform.codec.render import warm_up
@@ -120,19 +121,46 @@ def _run(args) -> int:
     if viewer:
         viewer.stats = live_stats(session, source, started)
     try:
-        session.run(source, update)
+        try:
+            session.run(source, update)
+        finally:
+            if progress:
+                progress.close()
+            session.close()  # the output file is whole from here on
+            if session.frames:
+                if args.json:
+                    print(json.dumps(session.stats(time.perf_counter() - started)), file=sys.stderr)
+                elif not args.quiet:
+                    print("fd-recv: " + session.summary(time.perf_counter() - started), file=sys.stderr)
+        if viewer and not listener:
+            _linger(viewer, args.quiet)
     finally:
-        if progress:
-            progress.close()
-        session.close()
         if viewer:
             viewer.close()
-        if session.frames:
-            if args.json:
-                print(json.dumps(session.stats(time.perf_counter() - started)), file=sys.stderr)
-            elif not args.quiet:
-                print("fd-recv: " + session.summary(time.perf_counter() - started), file=sys.stderr)
     return 0
+
+
+class _Shown:
+    """The viewer as one of the session's sinks, closed by fd-recv itself: it may outlast them."""
+
+    def __init__(self, viewer) -> None:
+        self.write = viewer.write
+
+    def close(self) -> None:
+        pass
+
+
+def _linger(viewer, quiet: bool) -> None:
+    """After a file or pipe's stream has ended, --serve keeps showing its last frame and statistics
+    until Ctrl-C (a call over --listen ends with the call)."""
+    if not quiet:
+        print(f"fd-recv: the stream has ended; {viewer.url} shows its last frame until Ctrl-C",
+              file=sys.stderr, flush=True)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        pass
 
 
 if __name__ == "__main__":

@@ -23,7 +23,7 @@ import pytest
 from facedeform.common.errors import InputError
 from facedeform.receiver.viewer import BOUNDARY, Viewer, parse_serve
 from facedeform.sender.detector import FaceDetector
-from tests.support import DEADLINE, FPS, RECV, ROOT, smooth_tracks, stream_packets
+from tests.support import CLIP, DEADLINE, FPS, RECV, ROOT, SEND, smooth_tracks, stream_packets
 
 BROWSER = shutil.which("chromium") or shutil.which("chromium-browser")
 CALL = 250  # frames: 10 s
@@ -189,3 +189,31 @@ def test_the_live_rate_leaves_out_what_came_before_the_first_frame():
     session = SimpleNamespace(stats=lambda seconds: {"frames": 25, "fps": 25.0}, bytes_before_frames=35_000)
     source = SimpleNamespace(consumed=35_000 + 500)
     assert live_stats(session, source, 0.0)()["kbit_per_s"] == 4.0
+
+
+def test_a_file_stream_stays_served_after_it_ends_until_interrupted(tmp_path):
+    import signal
+
+    stream = tmp_path / "s.fd"
+    with open(stream, "wb") as f:
+        sender = subprocess.run([*SEND, str(CLIP), "-q"], stdout=f, cwd=ROOT, timeout=DEADLINE)
+    assert sender.returncode == 0
+    proc = subprocess.Popen(RECV + [str(stream), "--serve", "127.0.0.1:0", "-o", str(tmp_path / "o.y4m"),
+                                    "--size", "64"], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=ROOT,
+                            bufsize=0)  # unbuffered: select() sees every line that has not been read
+    try:
+        url = proc.stderr.readline().decode().strip().rsplit(" ", 1)[1]
+        with selectors.DefaultSelector() as sel:  # the stream's end: its summary, then a line saying it is served
+            sel.register(proc.stderr, selectors.EVENT_READ)
+            lines = []
+            while not any("has ended" in line for line in lines):
+                assert sel.select(timeout=DEADLINE) and len(lines) < 3, lines
+                lines.append(proc.stderr.readline().decode())
+        assert (tmp_path / "o.y4m").stat().st_size > 0  # the output is written out before the wait
+        assert json.loads(get(url, "/stats.json")[2])["frames"] > 0 and proc.poll() is None
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=DEADLINE)
+        assert proc.returncode == 0 and "Traceback" not in err.decode()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
