@@ -1,6 +1,6 @@
 """Bits per frame of the stream format on parameter dumps, with the error of what the decoder outputs beside each.
 
-Dumps come from ``python -m sender.cli CLIP -o /dev/null --dump DUMP.npz --params paper|mouth|full``
+Dumps come from ``fd-send CLIP -o /dev/null --dump DUMP.npz --params paper|mouth|full``
 (unquantised parameters: the sender's only hold is the encoder's dead zone). As fd-send does, the
 stream codes the principal axes of the first second's motion unless ``--no-basis``.
 Prints a Markdown table: clip, layout, quality, dead zone, bits per frame

@@ -1,6 +1,6 @@
 """Frames that survive a lossy datagram link, what redundancy and late join cost, and where a junk flood breaks.
 
-``loss``: on fd-send dumps (``python -m sender.cli CLIP -o /dev/null --dump DUMP.npz``), the stream
+``loss``: on fd-send dumps (``fd-send CLIP -o /dev/null --dump DUMP.npz``), the stream
 as fd-send codes it (2 frames per packet, the first second's basis, a keyframe a second) is cut
 into datagrams by ``protocol.encoder.Datagrams`` with 0-3 earlier packets carried again, frames
 datagrams are dropped at random (0, 1, 5, 10, 20 %) or in bursts of 3, and a ``DatagramDecoder``
