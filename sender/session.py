@@ -17,6 +17,7 @@ from facedeform.common.limits import MAX_SIDE
 from facedeform.common.npz import NpzAppender
 from facedeform.common.stages import Source
 from facedeform.protocol.basis import principal_basis
+from facedeform.protocol.encoder import COPIES
 from facedeform.protocol.secure import SecureSealer
 from facedeform.protocol.stream import (
     DEFAULT_QUALITY,
@@ -177,7 +178,8 @@ class SendSession:
             if first and bitrate is not None:
                 aim = parameter_rate(bitrate) if self._picture_layer() else bitrate
                 quality = quality_for_bitrate(self._header, sample, aim, self.config.frames_per_packet,
-                                              self.config.dead_zone, 0 if self.sealer is None else self.sealer.overhead)
+                                              self.config.dead_zone, 0 if self.sealer is None else self.sealer.overhead,
+                                              COPIES if self.config.datagrams else None)
             self._configure(quality)
             if bitrate is not None and self._picture_layer():
                 self.picture = PictureLayer(self._face, self.header, bitrate, self.sealed, self.config.datagrams)

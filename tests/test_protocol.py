@@ -418,6 +418,21 @@ def test_bitrate_estimate_is_what_the_stream_takes(sealed, divisor):
     assert estimate == 8 * len(frame_bytes(packets, sealed))  # a second of frames: bits are bit/s
 
 
+def test_over_datagrams_the_bitrate_estimate_counts_the_copies_they_carry():
+    """Over UDP each datagram carries the packet before it again: --bitrate counts those bytes, which
+    nearly double the frames' (the header's repeats for late joiners are not counted)."""
+    from facedeform.protocol.encoder import COPIES, Datagrams
+    from facedeform.protocol.rate import sample_bits_per_second
+
+    h = header(skip_static=True)
+    sample = [(p, True) for p in walk(25, len(PAPER_PARAMS), seed=5)]
+    encoder = PacketEncoder(h, 2, dead_zone=1.0)
+    packets = [p for params, seen in sample for p in encoder.frame(params, seen)] + encoder.end()[:-1]
+    sent = Datagrams(b"", COPIES, header_every=0, eager=0).add(packets)
+    plain = sample_bits_per_second(h, sample, 2, 1.0)
+    assert sample_bits_per_second(h, sample, 2, 1.0, copies=COPIES) == 8 * sum(map(len, sent)) > 1.5 * plain
+
+
 @pytest.mark.parametrize("width, height, rule", [(0, 0, "refined"), (640, 480, "paper"), (MAX_SIDE, 1, "paper")])
 def test_frame_size_and_rule_travel_in_the_header(width, height, rule):
     h = header(width=width, height=height, rule=rule)
