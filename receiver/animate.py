@@ -133,12 +133,16 @@ def interpolate(times: np.ndarray, keys: np.ndarray, t: float) -> np.ndarray:
 def _run(args) -> int:
     from facedeform.codec.deform import Deformer
     from facedeform.codec.face_model import load_base_face
+    from facedeform.codec.render import WARMING_UP, warm_up
     from facedeform.common.errors import InputError
+    from facedeform.common.progress import slow_step
     from facedeform.receiver.face_view import face_renderer, portrait_camera
     from facedeform.receiver.output import open_writer
 
     check_output(args.output, "-o", (args.script,))
     times, keys = read_script(args.script)
+    with slow_step("fd-animate", WARMING_UP, args.quiet):
+        warm_up()
     count = int(round(times[-1] * args.fps))
     if args.output == "-" and sys.stdout.isatty():
         raise InputError("refusing to write video to a terminal: use -o FILE.mp4")

@@ -104,10 +104,13 @@ def _run(args) -> int:
         sinks = [open_writer(args.output, fps, size, sys.stdout.buffer)] if args.output else []
         return sinks + ([_Shown(viewer)] if viewer else [])
 
-    if args.listen:
-        from facedeform.codec.render import warm_up
+    from facedeform.codec.render import WARMING_UP, warm_up
+    from facedeform.common.progress import slow_step
 
-        warm_up()  # before listening: the first frame then waits only for the call, not for the renderer
+    # before the stream: a call's first frame waits only for the call, and the first run after an
+    # install, which compiles the rasteriser, says so instead of seeming to hang
+    with slow_step("fd-recv", WARMING_UP, args.quiet or args.json):
+        warm_up()
     listener = Listener(args.listen, args.timeout, key, args.headers) if args.listen else None
     if listener and not args.quiet:
         print(f"fd-recv: listening on {listener.url}", file=sys.stderr, flush=True)

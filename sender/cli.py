@@ -149,6 +149,12 @@ def _run(args) -> int:
                         dead_zone=args.dead_zone, bitrate=None if args.bitrate is None else 1000 * args.bitrate,
                         basis=not args.no_basis, divisor=args.send_every,
                         datagrams=args.output.startswith("udp://"), rule=args.rule)
+    if face is not None and config.bitrate is not None and config.picture_layer:
+        from facedeform.codec.render import WARMING_UP, warm_up
+        from facedeform.common.progress import slow_step
+
+        with slow_step("fd-send", WARMING_UP, args.quiet or args.json):  # the picture layer draws what is sent
+            warm_up()
     session = SendSession(source, config, args.dump, face)
     sink = None
     try:
