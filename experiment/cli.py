@@ -78,7 +78,7 @@ def _run(args) -> int:
     from facedeform.experiment.baselines import CODECS, check, ladder
     from facedeform.experiment.clips import prepare
     from facedeform.experiment.metrics import vmaf_available
-    from facedeform.experiment.report import plot, table, write_rows
+    from facedeform.experiment.report import bd_table, plot, table, write_rows
     from facedeform.experiment.runs import ours_name
 
     if not (args.faces or args.baselines):
@@ -125,7 +125,8 @@ def _run(args) -> int:
     rows = sorted((json.loads(row_file(t).read_text()) for t in tasks),
                   key=lambda r: (r["clip"], r["size"], r["codec"], r["bitrate_bps"]))
     write_rows(rows, args.out)
-    (args.out / "table.md").write_text(table(rows))
+    (args.out / "table.md").write_text(table(rows) + "\nBD-rate of ours against each baseline (negative: fewer bits "
+                                       "for the same quality), where the mean curves overlap:\n\n" + bd_table(rows))
     plots = plot(rows, args.out)
     for c in prepared:
         _side_by_side(c, rows, args.out)

@@ -109,6 +109,47 @@ def _save(fig, path: Path) -> Path:
 TABLED = ("psnr", "psnr_p5", "ssim", "ms_ssim", "vmaf", "mouth_akd", "opening_corr", "faces_found")
 
 
+def bd_rate(ours: tuple[np.ndarray, np.ndarray], theirs: tuple[np.ndarray, np.ndarray]) -> float | None:
+    """Bjontegaard rate difference in percent: how many more bits (negative: fewer) ``ours`` needs
+    than ``theirs`` for the same quality, averaged over the quality range both curves cover; each
+    curve (kbit/s, quality) is interpolated in log-rate by monotone cubic (PCHIP) pieces. None
+    where the curves do not overlap or either has fewer than two distinct qualities."""
+    from scipy.interpolate import PchipInterpolator
+
+    def log_rate(curve):
+        rate, quality = (np.asarray(v, dtype=np.float64) for v in curve)
+        order = np.argsort(quality)
+        quality, rate = quality[order], rate[order]
+        keep = np.concatenate([[True], np.diff(quality) > 0])
+        return (PchipInterpolator(quality[keep], np.log10(rate[keep])), quality[keep]) if keep.sum() >= 2 else None
+
+    a, b = log_rate(ours), log_rate(theirs)
+    if a is None or b is None:
+        return None
+    low, high = max(a[1][0], b[1][0]), min(a[1][-1], b[1][-1])
+    if not high > low:
+        return None
+    grid = np.linspace(low, high, 101)
+    return float(100.0 * (10.0 ** np.mean(a[0](grid) - b[0](grid)) - 1.0))
+
+
+def bd_table(rows: list[dict], ours: str = "ours-auto-own") -> str:
+    """Markdown: per size, the BD-rate of ``ours`` (every setting run: quality levels and rates)
+    against each baseline, on PSNR and on VMAF, over the clips' mean curves."""
+    lines = ["| size | against | BD-rate, PSNR | BD-rate, VMAF |", "|---|---|---|---|"]
+    for size in sorted({r["size"] for r in rows}):
+        by_metric = {m: curves(rows, size, m) for m in ("psnr", "vmaf")}
+        if ours not in by_metric["psnr"]:
+            continue
+        for codec in sorted(c for c in by_metric["psnr"] if not c.startswith("ours")):
+            cells = []
+            for metric in ("psnr", "vmaf"):
+                value = bd_rate(by_metric[metric][ours], by_metric[metric][codec])
+                cells.append("no overlap" if value is None else f"{value:+.0f} %")
+            lines.append(f"| {size} | {codec} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def table(rows: list[dict]) -> str:
     """Markdown: per size, our default settings (fd-send's auto parameters, quality 3, own face) and
     each baseline at its floor (its coarsest setting) and at the setting whose rate is nearest 3 times

@@ -155,3 +155,15 @@ def test_the_similarity_fits_the_decoded_keypoints_onto_the_reference():
     m = similarities(dec, ref)
     np.testing.assert_allclose(m[0], [[2, 0, -40], [0, 2, -20]], atol=1e-9)
     np.testing.assert_array_equal(m[1], np.eye(2, 3))
+
+
+def test_bd_rate_is_the_rate_saved_at_equal_quality():
+    from facedeform.experiment.report import bd_rate
+
+    quality = np.array([20.0, 24.0, 28.0, 32.0])
+    rate = np.array([2.0, 5.0, 12.0, 30.0])
+    assert bd_rate((rate / 2, quality), (rate, quality)) == pytest.approx(-50.0)
+    assert bd_rate((rate * 1.25, quality), (rate, quality)) == pytest.approx(25.0)
+    # only where both curves reach: ours from 26 dB up against theirs to 24 dB is no overlap
+    assert bd_rate((rate, quality + 6), (rate, quality - 8)) is None
+    assert bd_rate((rate[:1], quality[:1]), (rate, quality)) is None  # one point is no curve
