@@ -60,8 +60,8 @@ class Enrolment:
 def enroll_face(video, frame: int | None = None, seconds: float = 2.0, motion: int = MOTION_PATTERNS,
                 motion_over: str = "rest", motion_seconds: float = 60.0, picture: bool = True,
                 texture_size: int = TEXTURE_SIZE, on_frame=None) -> Enrolment:
-    """The face model of the person in ``video`` (a path, or an opened ``sender.sources`` source
-    for the neutral pass only when ``motion`` is 0 and ``picture`` False).
+    """The face model of the person in ``video`` (a video file, an image directory or a %d
+    pattern: it is read twice, ``sender.sources.open_source``).
 
     frame: the neutral frame's index (None: of the first ``seconds`` after the face appears, the
     one with the mouth most closed and the head nearest frontal); motion: most patterns in the
@@ -81,7 +81,7 @@ def enroll_face(video, frame: int | None = None, seconds: float = 2.0, motion: i
     if not (seconds > 0 and motion_seconds > 0):
         raise ValueError("seconds and motion_seconds must be above 0")
     base = load_base_face()
-    found = first_seconds(_open(video), base, frame, seconds)
+    found = first_seconds(open_source(str(video)), base, frame, seconds)
     rgb = cv2.cvtColor(found.frame, cv2.COLOR_BGR2RGB)
     texture, ref = None, None
     if picture:
@@ -95,10 +95,6 @@ def enroll_face(video, frame: int | None = None, seconds: float = 2.0, motion: i
     face = Face(personal_face(found.aligned, texture, base, basis, ref))
     return Enrolment(face, found.index, found.score[0], found.score[1],
                      0 if basis is None else basis.components, frames)
-
-
-def _open(video):
-    return open_source(str(video)) if isinstance(video, str) or hasattr(video, "__fspath__") else video
 
 
 def reference_picture(rgb: np.ndarray, landmarks: np.ndarray, aligned: np.ndarray, base: BaseFace,
@@ -176,7 +172,7 @@ def _learn(video, face: BaseFace, neutral: int, patterns: int, over: str, second
     rings = None if face.picture is None else RingWeights(face)
     if not patterns and rings is None:
         return None, None, 0
-    source = _open(video)
+    source = open_source(str(video))
     limit = max(neutral + 1, round(seconds * source.fps))
     total = min(limit, source.length or limit)
     tracker = _Watched(FaceTracker(), None if rings is None else rings.add)
