@@ -26,6 +26,11 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
 
     def run() -> int:
+        from facedeform.common.errors import InputError
+
+        if args.output == "-":
+            raise InputError("give the key a file name: a key is not written to stdout, where a terminal or a log "
+                             "would keep it")
         key = write_key(args.output, args.force)
         print(f"fd-keygen: wrote key {key_id(key).hex()} to {args.output}", file=sys.stderr)
         return 0

@@ -1,5 +1,6 @@
 """User mistakes across the tools: each is one line on stderr and a non-zero exit, caught before the work."""
 
+import subprocess
 import sys
 
 import pytest
@@ -85,3 +86,10 @@ def test_sizes_keep_proportions_unless_both_sides_are_given():
     assert parse_size("640x480") == (640, 480) and fitted((640, 480), (360, 288)) == (640, 480)
     assert parse_size("256") == (256, 0) and fitted((256, 0), (360, 288)) == (256, 204)
     assert fitted((640, 0), (1920, 1080)) == (640, 360)
+
+
+def test_keygen_refuses_to_write_a_key_to_stdout(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "facedeform.sender.keygen", "-"], cwd=tmp_path,
+                            capture_output=True, timeout=60)
+    assert_one_line_error(result, "fd-keygen")
+    assert not (tmp_path / "-").exists()
