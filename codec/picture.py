@@ -271,7 +271,7 @@ class SceneMesh:
         showed (``seen``) onto where it lies at rest, values as they are (linear); where no scene
         triangle lies at rest, ``elsewhere`` (the same carried by the background's motion); 128
         on the triangles the frame did not show."""
-        from facedeform.codec.render import Material, Renderer
+        from facedeform.codec.render import UNLIT, Renderer
 
         height, width = image.shape[:2]
         covered = self._covers((width, height), camera)
@@ -281,7 +281,7 @@ class SceneMesh:
             return base
         pixels = self.pixels(positions)
         uv = np.column_stack([pixels[:, 0] / width, 1.0 - pixels[:, 1] / height])
-        carry = Renderer(self.triangles[drawn], size=(width, height), material=Material(ambient=1.0, specular=0.0),
+        carry = Renderer(self.triangles[drawn], size=(width, height), material=UNLIT,
                          lights=(), background=base, uv=np.concatenate([uv, uv[self._mouth]]), texture=image,
                          linear=True)
         return carry.render(self._rest_positions, camera)[0]

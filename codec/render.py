@@ -60,6 +60,7 @@ class DirectionalLight:
     intensity: float = 1.0
 
 
+UNLIT = Material(ambient=1.0, specular=0.0)  # a texture's own light, as a picture shows it
 KEY_LIGHT = DirectionalLight((-0.4, 0.5, 1.0), intensity=0.85)
 FILL_LIGHT = DirectionalLight((0.7, -0.1, 0.5), intensity=0.3)
 

@@ -10,6 +10,7 @@ line); damage inside a stream is reported to ``on_damage`` and concealed.
 """
 
 import logging
+import os
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from os import PathLike
@@ -23,7 +24,6 @@ from facedeform.common.limits import MAX_SIDE
 __all__ = ["Face", "decode", "encode", "enroll"]
 
 log = logging.getLogger("facedeform")
-CHUNK = 1 << 16  # bytes read at a time from a stream file
 
 
 def enroll(video: str | PathLike, **options) -> Face:
@@ -73,7 +73,7 @@ def decode(stream: bytes | str | PathLike | Iterable[bytes], face: Face | str | 
     """
     from facedeform.receiver.face_view import LOOKS
     from facedeform.receiver.session import ReceiveSession
-    from facedeform.receiver.transport import ByteSource
+    from facedeform.receiver.transport import ByteSource, open_file
 
     if look is not None and look not in LOOKS:
         raise ValueError(f"look must be one of {', '.join(LOOKS)}, not {look!r}")
@@ -84,7 +84,11 @@ def decode(stream: bytes | str | PathLike | Iterable[bytes], face: Face | str | 
     pending: deque[np.ndarray] = deque()
     session = ReceiveSession(lambda fps, wh: [_Collect(pending)], size, None if face is None else face.model,
                              "face", look=look, warn=on_damage or log.warning)
-    source = ByteSource(_reader(stream), key=key)
+    if isinstance(stream, str | PathLike):
+        path = _path(stream, "stream")
+        source = open_file(path if path != "-" else os.path.join(".", path), None, key)  # a file, not stdin
+    else:
+        source = ByteSource(_reader(stream), key=key)
     session.source = source
     try:
         for events, arrived in source.batches():
@@ -139,11 +143,9 @@ class _Collect:
 
 
 def _reader(stream) -> Callable[[int], bytes]:
-    """read(n) over the stream's bytes, whichever form they came in (n is a hint)."""
+    """read(n) over the stream's bytes, whole or in chunks (n is a hint)."""
     if isinstance(stream, bytes | bytearray | memoryview):
         stream = [bytes(stream)]
-    elif isinstance(stream, str | PathLike):
-        stream = _chunks(_path(stream, "stream"))
     elif not isinstance(stream, Iterable):
         raise TypeError(f"stream must be bytes, a path or an iterable of bytes, not {type(stream).__name__}")
     chunks = iter(stream)
@@ -157,18 +159,6 @@ def _reader(stream) -> Callable[[int], bytes]:
         return b""
 
     return read
-
-
-def _chunks(path: str) -> Iterator[bytes]:
-    from facedeform.common.errors import InputError
-
-    try:
-        f = open(path, "rb")
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    with f:
-        while chunk := f.read(CHUNK):
-            yield chunk
 
 
 def _path(value, what: str) -> str:

@@ -37,6 +37,7 @@ from facedeform.protocol.framing import (
     SYNC,
     frame_count,
     inner_check,
+    need_varint,
     packet_ends,
     packet_size,
     packet_type,
@@ -48,14 +49,6 @@ from facedeform.protocol.priors import models_for
 
 MAX_PICTURE = 1 << 18  # bytes of one renewal of the picture: far more than any rate asks for
 MAX_SEEK = 1 << 16  # bytes searched for a header before the input is declared foreign
-
-
-def _varint_or_fail(data: bytes, pos: int, limit: int) -> tuple[int, int]:
-    """(value, next position); BitstreamError if ``data`` ends first or the value is over ``limit``."""
-    got = read_varint(data, pos, limit)
-    if got is None:
-        raise BitstreamError("packet ends inside a number")
-    return got
 
 
 class PacketDecoder:
@@ -319,10 +312,11 @@ class PacketDecoder:
     def _on_picture(self, body: bytes) -> list | None:
         """A piece of a renewal of the picture: pieces come in order, one renewal at a time (a new
         frame's first piece drops an unfinished one); the whole renewal is one event."""
-        frame, pos = _varint_or_fail(body, 0, MAX_FRAME)
-        whole, pos = _varint_or_fail(body, pos, 1)
-        total, pos = _varint_or_fail(body, pos, MAX_PICTURE)
-        offset, pos = _varint_or_fail(body, pos, MAX_PICTURE)
+        cut = "picture packet ends inside a number"
+        frame, pos = need_varint(body, 0, MAX_FRAME, cut)
+        whole, pos = need_varint(body, pos, 1, cut)
+        total, pos = need_varint(body, pos, MAX_PICTURE, cut)
+        offset, pos = need_varint(body, pos, MAX_PICTURE, cut)
         piece = body[pos:]
         if not piece or offset + len(piece) > total:
             return None

@@ -110,6 +110,14 @@ def read_varint(data: bytes, pos: int, limit: int) -> tuple[int, int] | None:
     return None
 
 
+def need_varint(data: bytes, pos: int, limit: int, cut: str) -> tuple[int, int]:
+    """(value, next position) as :func:`read_varint`, but BitstreamError(``cut``) if ``data`` ends first."""
+    got = read_varint(data, pos, limit)
+    if got is None:
+        raise BitstreamError(cut)
+    return got
+
+
 class Delta(bytes):
     """A delta packet: its first byte may be anything but :data:`SYNC`, so it says what it is by
     its type (:func:`protocol.encoder.frame_bytes` gives it no sync byte)."""

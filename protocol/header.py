@@ -14,7 +14,7 @@ import numpy as np
 from facedeform.common.errors import BitstreamError
 from facedeform.common.limits import MAX_SIDE
 from facedeform.protocol.basis import basis_matrices
-from facedeform.protocol.framing import read_varint, varint
+from facedeform.protocol.framing import need_varint, varint
 from facedeform.protocol.quantise import dequantise
 
 MAGIC = b"FD"
@@ -170,10 +170,7 @@ def parse_header(body: bytes) -> Header:
 
 
 def _varint(body: bytes, pos: int, limit: int) -> tuple[int, int]:
-    got = read_varint(body, pos, limit)
-    if got is None:
-        raise BitstreamError("stream header cut short")
-    return got
+    return need_varint(body, pos, limit, "stream header cut short")
 
 
 def _byte(body: bytes, pos: int) -> int:

@@ -11,7 +11,7 @@ from facedeform.codec.camera import Camera
 from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, Deformer
 from facedeform.codec.face_model import BaseFace
 from facedeform.codec.picture import SceneMesh, face_texture, frame_placement, global_matrix
-from facedeform.codec.render import Material, Renderer
+from facedeform.codec.render import UNLIT, Renderer
 from facedeform.common.errors import BitstreamError, InputError
 from facedeform.common.stages import View
 from facedeform.protocol.stream import Header
@@ -244,7 +244,6 @@ class PictureView(FaceView):
                                                      borderMode=cv2.BORDER_REPLICATE))
 
 
-UNLIT = Material(ambient=1.0, specular=0.0)  # the picture's own light
 _UNSET = np.zeros((0, 0))  # the background is not yet that of the picture drawn
 
 
