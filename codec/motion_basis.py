@@ -1,15 +1,15 @@
-"""A person's own motion basis: a few displacement patterns of their mouth and jaw.
+"""A person's own motion basis: a few displacement patterns of their face.
 
-The paper's deformation (and any physical model) misses part of how a real
-mouth moves. From an enrolment clip the sender learns, by a singular value
-decomposition, the few displacement patterns (pose-free, base-face units) that
-explain most of either what the paper's fit leaves over (``over="paper"``: the
-patterns refine the paper's 13 parameters) or the whole motion from the rest
-face (``over="rest"``: the patterns replace them, fewer numbers for the same
-fidelity on the dev clips). The patterns are shared once inside the face model
-file (codec/face_file.py); each frame then carries a coefficient per pattern
-(``basis_0``, ``basis_1``, ...), added to the deformed mesh like any other
-linear term.
+The paper's deformation (and any physical model) misses part of how a real face
+moves. From an enrolment clip the sender learns (sender/motion.py, over every
+vertex), by a singular value decomposition, the few displacement patterns
+(pose-free, base-face units) that explain most of either what the paper's fit
+leaves over (``over="paper"``: the patterns refine the paper's 13 parameters)
+or the whole motion from the rest face (``over="rest"``: the patterns replace
+them, fewer numbers for the same fidelity on the dev clips). The patterns are
+shared once inside the face model file (codec/face_file.py); each frame then
+carries a coefficient per pattern (``basis_0``, ``basis_1``, ...), added to the
+deformed mesh like any other linear term.
 
 Each pattern is scaled so that a coefficient of 1 moves its most-moved vertex
 by exactly 1 base-face unit: the coefficients then share the quantiser step

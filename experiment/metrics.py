@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from facedeform.codec.face_model import load_base_face
-from facedeform.sender.calibrate import inter_ocular, lip_gap
+from facedeform.sender.calibrate import eye_opening, inter_ocular, lip_gap
 from facedeform.sender.fidelity import MOUTH_JAW_LANDMARKS
 from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
 
@@ -67,13 +67,45 @@ def aligned(decoded: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return np.einsum("tij,tnj->tni", m[:, :, :2], dec) + m[:, None, :, 2]
 
 
-def opening_correlation(reference: np.ndarray, decoded: np.ndarray) -> float:
-    """Pearson correlation of the mouth opening of two keypoint tracks (frames with a face in both)."""
-    a, b = lip_gap(np.asarray(reference)[..., :2]), lip_gap(np.asarray(decoded)[..., :2])
+def _correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Pearson correlation of two series over the frames where both are known (NaN if either is flat)."""
     both = ~(np.isnan(a) | np.isnan(b))
-    if both.sum() < 3 or a[both].std() == 0 or b[both].std() == 0:
+    if both.sum() < 3 or np.ptp(a[both]) == 0 or np.ptp(b[both]) == 0:
         return float("nan")
     return float(np.corrcoef(a[both], b[both])[0, 1])
+
+
+def opening_correlation(reference: np.ndarray, decoded: np.ndarray) -> float:
+    """Pearson correlation of the mouth opening of two keypoint tracks (frames with a face in both)."""
+    return _correlation(lip_gap(np.asarray(reference)[..., :2]), lip_gap(np.asarray(decoded)[..., :2]))
+
+
+def eye_correlation(reference: np.ndarray, decoded: np.ndarray) -> float:
+    """Pearson correlation of the eye opening (both eyes' mean) of two keypoint tracks."""
+    return _correlation(eye_opening(np.asarray(reference)[..., :2]), eye_opening(np.asarray(decoded)[..., :2]))
+
+
+#: Percentiles whose distance is a series' swing: its range without the odd tracking glitch.
+SWING = (5.0, 95.0)
+
+
+def opening_swing(reference: np.ndarray, decoded: np.ndarray) -> float:
+    """How far the decoded mouth opens and closes over how far the original's does: the ratio of
+    their mouth openings' swings (5th to 95th percentile, frames with a face in both); 1 is the
+    speaker's own amplitude, below 1 a muted mouth."""
+    a, b = lip_gap(np.asarray(reference)[..., :2]), lip_gap(np.asarray(decoded)[..., :2])
+    both = ~(np.isnan(a) | np.isnan(b))
+    if both.sum() < 3:
+        return float("nan")
+    spread = np.subtract(*np.percentile(a[both], SWING[::-1]))
+    return float(np.subtract(*np.percentile(b[both], SWING[::-1])) / spread) if spread > 0 else float("nan")
+
+
+def blinks(landmarks: np.ndarray) -> bool:
+    """Whether a (t, 468, 2+) track shows a blink: an eye opening below half its median."""
+    e = eye_opening(np.asarray(landmarks)[..., :2])
+    e = e[~np.isnan(e)]
+    return bool(len(e) and e.min() < 0.5 * np.median(e))
 
 
 def pose_free(landmarks: np.ndarray) -> np.ndarray:

@@ -17,6 +17,7 @@ PLOTTED = {
     "mouth_akd": ("mouth AKD (÷ inter-ocular distance)", False),
     "mouth_akd_aligned": ("mouth AKD after alignment (÷ inter-ocular distance)", False),
     "opening_corr": ("mouth-opening correlation", True),
+    "eye_corr": ("eye-opening correlation", True),
     "motion_fidelity": ("mouth and jaw motion error (÷ motion; 0 perfect, 1 frozen)", False),
 }
 OVERVIEW = ("vmaf", "psnr", "ms_ssim", "mouth_akd")  # the four panels of overview_<size>.png

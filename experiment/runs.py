@@ -40,6 +40,8 @@ def measure(clip: Clip, decoded: list) -> dict:
         "akd_aligned": metrics.akd(ref, dec_aligned),
         "mouth_akd_aligned": metrics.akd(ref, dec_aligned, metrics.MOUTH),
         "opening_corr": metrics.opening_correlation(ref, dec),
+        "opening_swing": metrics.opening_swing(ref, dec),
+        "eye_corr": metrics.eye_correlation(ref, dec),
         "motion_fidelity": metrics.motion_fidelity(ref, dec, clip.fps),
     }
 

@@ -154,11 +154,13 @@ class PictureView(FaceView):
         self._renewal: tuple[int, np.ndarray, bool] | None = None  # (frame, image, whole) to apply when drawn
         self._at_picture: Renderer | None = None  # the scene at the picture's size, when the output's differs
 
-    def render(self, params: np.ndarray, seq: int | None = None) -> np.ndarray:
+    def render(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None) -> np.ndarray:
         """The picture of frame ``seq`` (None: the one after the last), renewed first if a renewal
-        of that frame is waiting."""
+        of that frame is waiting; ``shape``: a (468, 3) pose-free face (base-face units) to draw
+        instead of the one the parameters' expression deforms (the expression benchmark's oracle,
+        the tracked face itself), placed by the parameters' head pose and global motion."""
         self._seq = self._seq + 1 if seq is None else seq
-        positions, still = self._placed(self._full(params))
+        positions, still = self._placed(self._full(params), shape)
         self._move_background(still)
         if self._renewal is not None and self._renewal[0] <= self._seq:
             if self._renewal[0] == self._seq:
@@ -175,12 +177,14 @@ class PictureView(FaceView):
         if frame >= self._seq:
             self._renewal = (frame, image, whole)
 
-    def _placed(self, full: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """(scene vertex positions in picture axes, the frame's global motion map or None) for ``full``."""
+    def _placed(self, full: np.ndarray, shape: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """(scene vertex positions in picture axes, the frame's global motion map or None) for ``full``
+        (its expression drawn as ``shape`` if given)."""
         pose = full[_POSE].copy()
         expression = full.copy()
         expression[_POSE] = 0.0
-        deformed = self._deformer.deform_extended(expression, f3_with_jaw=self._f3_with_jaw)
+        deformed = self._deformer.deform_extended(expression, f3_with_jaw=self._f3_with_jaw) if shape is None \
+            else np.asarray(shape, dtype=np.float64)
         frame = frame_placement(self._scene.reference, pose, self._scene.pivot)
         still = global_matrix(full[_GLOBAL], self._scene.reference, self._picture_size)
         return self._scene.positions(deformed, frame, still), still

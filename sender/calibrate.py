@@ -88,3 +88,13 @@ def lip_gap(landmarks: np.ndarray) -> np.ndarray:
     a scale-free mouth opening."""
     lm = np.asarray(landmarks, dtype=np.float64)
     return np.linalg.norm(lm[..., UPPER_LIP, :] - lm[..., LOWER_LIP, :], axis=-1) / inter_ocular(lm)
+
+
+def eye_opening(landmarks: np.ndarray) -> np.ndarray:
+    """Mean lid gap of both eyes of (..., 468, d) landmarks, each over its eye's width -> (...):
+    a scale-free eye opening (near 0 in a blink)."""
+    lm = np.asarray(landmarks, dtype=np.float64)
+    def ratio(lids, corners):
+        return (np.linalg.norm(lm[..., lids[0], :] - lm[..., lids[1], :], axis=-1)
+                / np.linalg.norm(lm[..., corners[0], :] - lm[..., corners[1], :], axis=-1))
+    return 0.5 * (ratio(LIDS[0], EYES[0]) + ratio(LIDS[1], EYES[1]))

@@ -2,9 +2,18 @@
 
 The clip is analysed exactly as fd-send will analyse a call with this face
 model (same tracker, rest face, paper fit) but unsmoothed, so the residuals are
-the motion and not the filter's lag. The lower face's displacement from the
+the motion and not the filter's lag. The whole face's displacement from the
 rest face, or what the paper's 13 parameters leave over of it, becomes the
 basis (codec/motion_basis.py).
+
+Whole face, because a basis over part of the mesh moves that part past the
+still vertices around it: the dev clips' nose bottom rises with the upper lip,
+and a basis over the lower face alone (the paper's regions) turned the small
+triangles at its rim over in up to 84 % of a clip's frames, so that the
+receiver's fold guard drew the whole mouth scaled back (its opening swung 0.59
+times the speaker's on one clip). Over every vertex the basis has no rim: the
+same clips fold in 0-9 % of frames, the mouth swings 0.85-1.03 times, and the
+patterns also carry the speaker's own blinks and brows when the clip shows them.
 """
 
 from collections.abc import Iterable
@@ -27,22 +36,21 @@ FRAMES_PER_PATTERN = 4
 def residuals(frames: Iterable[np.ndarray], tracker, face: BaseFace, fps: float, over: str = "rest",
               neutral: int | None = None, on_frame=None) -> tuple[np.ndarray, np.ndarray]:
     """((n, k, 3) displacements from the rest face, or with ``over="paper"`` residuals of the paper
-    fit, over the k lower-face landmarks the paper's model moves, (k,) their indices), for the n
-    frames with a face; ``neutral``: the rest frame's index (default: chosen as fd-send does);
-    ``on_frame(count)`` after each frame (progress)."""
+    fit, of all k vertices, (k,) their indices), for the n frames with a face; ``neutral``: the rest
+    frame's index (default: chosen as fd-send does); ``on_frame(count)`` after each frame (progress)."""
     # the residuals need neither where the head is in a reference picture nor the frame's motion
     analyser = FaceAnalyser(tracker, replace(face, picture=None), fps, "paper", calibration_frames=round(fps),
                             neutral=neutral, smoothing=Smoothing(0.0))
     deformer = Deformer(face)
-    lower = analyser.fit.lower
+    vertices = np.arange(len(face.vertices))
     out = []
     for count, result in enumerate(analyser.run(frames), 1):
         if result.target is not None:
             params = result.params[:13] if over == "paper" else np.zeros(13)
-            out.append(result.target[lower] - deformer.deform(params)[lower])
+            out.append(result.target - deformer.deform(params))
         if on_frame is not None:
             on_frame(count)
-    return (np.stack(out) if out else np.zeros((0, len(lower), 3))), lower
+    return (np.stack(out) if out else np.zeros((0, len(vertices), 3))), vertices
 
 
 def learn_motion(residual: np.ndarray, vertices: np.ndarray, components: int,

@@ -20,7 +20,7 @@ from tests.support import CLIP
 ARGS = ["--seconds", "2", "--sizes", "128", "--qualities", "3", "--baselines", "x264", "--rungs", "3", "-q"]
 PIXEL = {"psnr": (5, 60), "psnr_p5": (5, 60), "ssim": (-1, 1), "ms_ssim": (0, 1), "vmaf": (0, 100)}
 KEYPOINT = {"akd": (0, 1), "mouth_akd": (0, 1), "akd_aligned": (0, 0.5), "mouth_akd_aligned": (0, 0.5),
-            "opening_corr": (-1, 1), "motion_fidelity": (0, 1.5)}
+            "opening_corr": (-1, 1), "opening_swing": (0.3, 3), "eye_corr": (-1, 1), "motion_fidelity": (0, 1.5)}
 SPEED = ("encode_fps", "decode_fps")
 
 

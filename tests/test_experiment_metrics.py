@@ -3,8 +3,20 @@
 import numpy as np
 import pytest
 
-from facedeform.experiment.metrics import MOUTH, akd, ms_ssim, opening_correlation, psnr, psnr_rgb, ssim, vmaf
-from facedeform.sender.calibrate import lip_gap
+from facedeform.experiment.metrics import (
+    MOUTH,
+    akd,
+    blinks,
+    eye_correlation,
+    ms_ssim,
+    opening_correlation,
+    opening_swing,
+    psnr,
+    psnr_rgb,
+    ssim,
+    vmaf,
+)
+from facedeform.sender.calibrate import eye_opening, lip_gap
 
 
 def track(t=10, seed=0):
@@ -46,6 +58,30 @@ def test_mouth_opening_correlation():
     assert opening_correlation(ref, ref) == pytest.approx(1.0)
     frozen = np.repeat(ref[:1], len(ref), axis=0)
     assert np.isnan(opening_correlation(ref, frozen))
+
+
+def test_a_mouth_that_opens_half_as_far_swings_half_as_far():
+    ref = track(t=40)
+    ref[:, 13] = [200.0, 240.0]  # the upper lip, the lower one opening below it from 2 px to 22 px
+    ref[:, 14] = np.column_stack([np.full(40, 200.0), np.linspace(242.0, 262.0, 40)])
+    muted = ref.copy()
+    muted[:, 14, 1] = ref[0, 14, 1] + 0.5 * (ref[:, 14, 1] - ref[0, 14, 1])
+    assert lip_gap(ref)[-1] > lip_gap(ref)[0]
+    assert opening_swing(ref, ref) == pytest.approx(1.0)
+    assert opening_swing(ref, muted) == pytest.approx(0.5, abs=0.02)
+    assert opening_correlation(ref, muted) == pytest.approx(1.0)
+
+
+def test_a_blink_is_seen_and_an_open_stare_does_not_follow_it():
+    ref = track(t=30)
+    ref[:, [159, 145]] = [[160.0, 144.0], [160.0, 150.0]]  # lids 6 px apart, eyes 20 px wide
+    ref[:, [386, 374]] = [[240.0, 144.0], [240.0, 150.0]]
+    stare = ref.copy()
+    ref[12:15, [159, 386], 1] = 149.0  # a blink of three frames
+    np.testing.assert_allclose(eye_opening(stare)[0], 6.0 / 20.0)
+    assert blinks(ref) and not blinks(stare)
+    assert eye_correlation(ref, ref) == pytest.approx(1.0)
+    assert np.isnan(eye_correlation(ref, stare))  # a face that never blinks follows no blink
 
 
 def test_psnr_and_ssim_inside_the_mask():
