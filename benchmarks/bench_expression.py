@@ -42,9 +42,10 @@ from facedeform.sender.config import SendConfig
 from facedeform.sender.session import SendSession, stream_header
 
 
-def send(clip, face, dump: Path) -> tuple[list[bytes], float, tuple[str, ...]]:
-    """(stream chunks, kbit/s after the header, parameter names) of fd-send's defaults."""
-    session = SendSession(str(clip.path), SendConfig(embed_face=False), dump=dump, face=face)
+def send(clip, face, dump: Path, options: dict) -> tuple[list[bytes], float, tuple[str, ...]]:
+    """(stream chunks, kbit/s after the header, parameter names) of fd-send with ``options``
+    (SendConfig's fields; none: its defaults)."""
+    session = SendSession(str(clip.path), SendConfig(embed_face=False, **options), dump=dump, face=face)
     chunks = [frame_bytes(packets, session.sealed) for packets in session.packets() if packets]
     session.close()
     kbps = 8 * sum(map(len, chunks[1:])) * clip.fps / len(clip.frames) / 1000
@@ -80,9 +81,9 @@ def spread(x: np.ndarray) -> float:
     return float(np.subtract(*np.percentile(x, metrics.SWING[::-1])))
 
 
-def run(clip, face, work: Path) -> dict:
+def run(clip, face, work: Path, options: dict) -> dict:
     dump = work / f"{clip.name}.npz"
-    chunks, kbps, names = send(clip, face, dump)
+    chunks, kbps, names = send(clip, face, dump, options)
     ours = list(facedeform.decode(chunks, face))
     oracle, frozen, uncoded, fit_gap, target_gap = drawn_beside(clip, face, names, dump)
     ref = clip.landmarks
@@ -115,7 +116,13 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("clips", nargs="+", type=Path)
     p.add_argument("--out", type=Path, default=Path("results"))
+    p.add_argument("--bitrate", type=float, metavar="KBPS", help="fd-send --bitrate, the picture layer off "
+                   "(default: fd-send's defaults, a quality level)")
+    p.add_argument("--quality", type=int, help="fd-send --quality (default: fd-send's)")
     args = p.parse_args()
+    options: dict = {} if args.quality is None else {"quality": args.quality}
+    if args.bitrate is not None:
+        options.update(bitrate=1000 * args.bitrate, picture_layer=False)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
     with tempfile.TemporaryDirectory(prefix="fd-bench-") as tmp:
@@ -124,7 +131,7 @@ def main() -> None:
             clip = prepare(path, 256, work)
             half = len(clip.frames) / 2 / clip.fps
             face = facedeform.enroll(str(clip.path), seconds=1.0, motion=MAX_COMPONENTS, motion_seconds=half)
-            rows.append(row := run(clip, face, work))
+            rows.append(row := run(clip, face, work, options))
             print(json.dumps(row), flush=True)
     (args.out / "expression.json").write_text(json.dumps(rows, indent=1) + "\n")
     print("| clip | " + " | ".join(t for t, _, _ in TABLE) + " |")

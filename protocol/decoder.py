@@ -73,6 +73,8 @@ class PacketDecoder:
         self.stats = Stats()
         self.ended = False
         self._group: GroupState | None = None  # None: waiting for a keyframe
+        #: While waiting for a keyframe, damage is not reported: it was already (or a late joiner waits for its first).
+        self._quiet = late_join
         self._next = 0  # coded index the next delta packet must start at
         self._out = 0  # next output frame number
         self._last: tuple[int, np.ndarray, bool] | None = None  # coded index, params, face of the last decoded
@@ -277,10 +279,11 @@ class PacketDecoder:
         return bytes(buf[pos:start + len(code)])
 
     def damage(self, reason: str, always: bool = False) -> list:
-        """Records damage; reported once per loss of sync (unless ``always``), then frames wait for a keyframe."""
-        if self._group is None and not always:
+        """Records damage; reported once per loss of sync (unless ``always``), then frames wait for a
+        keyframe. Damage before the first keyframe is reported too (a byte stream's first packets)."""
+        if self._group is None and self._quiet and not always:
             return []
-        self._group = None
+        self._group, self._quiet = None, True
         self.stats.damaged += 1
         self.stats.reasons.append(reason)
         return [Damage(self._out, reason)]
@@ -351,7 +354,7 @@ class PacketDecoder:
             return self.damage(f"end mark claims {total} frames: {self._out} were output, and the "
                                f"{self.unpaid(size)} bytes since the last frames allow no more than "
                                f"{(self._next + self.allowance(size)) * divisor}", always=True)
-        complete = self._group is not None and self._next == coded
+        complete = self._next == coded and (self._group is not None or coded == 0)  # or a stream of no frames
         events = [] if complete else self.damage("packets lost before the end mark")
         events += self._fill(total, None, complete)
         self.ended = True

@@ -9,6 +9,7 @@ import numpy as np
 
 from facedeform.codec.camera import Camera
 from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, Deformer
+from facedeform.codec.eyelids import Eyelids
 from facedeform.codec.face_model import BaseFace
 from facedeform.codec.picture import SceneMesh, face_texture, frame_placement, global_matrix
 from facedeform.codec.render import UNLIT, Renderer
@@ -153,6 +154,9 @@ class PictureView(FaceView):
         self._seq = -1
         self._renewal: tuple[int, np.ndarray, bool] | None = None  # (frame, image, whole) to apply when drawn
         self._at_picture: Renderer | None = None  # the scene at the picture's size, when the output's differs
+        self._lids = Eyelids(face, self._scene.rest_pixels, self._picture_size)
+        self._eye_fills = face.eye_faces
+        self._shut: tuple[float, ...] = (0.0, 0.0)  # how far each eye shows lid skin (codec/eyelids.py)
 
     def render(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None) -> np.ndarray:
         """The picture of frame ``seq`` (None: the one after the last), renewed first if a renewal
@@ -160,8 +164,12 @@ class PictureView(FaceView):
         instead of the one the parameters' expression deforms (the expression benchmark's oracle,
         the tracked face itself), placed by the parameters' head pose and global motion."""
         self._seq = self._seq + 1 if seq is None else seq
-        positions, still = self._placed(self._full(params), shape)
+        positions, still, deformed = self._placed(self._full(params), shape)
         self._move_background(still)
+        shut = self._lids.weights(deformed)
+        if shut != self._shut:
+            self._shut = shut
+            self._retexture()
         if self._renewal is not None and self._renewal[0] <= self._seq:
             if self._renewal[0] == self._seq:
                 self._renew(positions, still, *self._renewal[1:])
@@ -177,9 +185,10 @@ class PictureView(FaceView):
         if frame >= self._seq:
             self._renewal = (frame, image, whole)
 
-    def _placed(self, full: np.ndarray, shape: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-        """(scene vertex positions in picture axes, the frame's global motion map or None) for ``full``
-        (its expression drawn as ``shape`` if given)."""
+    def _placed(self, full: np.ndarray, shape: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+        """(scene vertex positions in picture axes, the frame's global motion map or None, the pose-free
+        deformed face) for ``full`` (its expression drawn as ``shape`` if given)."""
         pose = full[_POSE].copy()
         expression = full.copy()
         expression[_POSE] = 0.0
@@ -187,7 +196,7 @@ class PictureView(FaceView):
             else np.asarray(shape, dtype=np.float64)
         frame = frame_placement(self._scene.reference, pose, self._scene.pivot)
         still = global_matrix(full[_GLOBAL], self._scene.reference, self._picture_size)
-        return self._scene.positions(deformed, frame, still), still
+        return self._scene.positions(deformed, frame, still), still, deformed
 
     def _renew(self, positions: np.ndarray, still: np.ndarray | None, coded: np.ndarray, whole: bool) -> None:
         """Adds the renewal of the frame at ``positions`` (global motion ``still``) to the picture."""
@@ -205,16 +214,22 @@ class PictureView(FaceView):
         else:
             residual_back = residual
         seen = self._scene.seen(positions, camera.project(positions, size)[:, 2], nearest)
+        if any(self._shut):  # the picture keeps its open eyes: a closing lid's skin is drawn over them
+            seen[:len(self._eye_fills)] &= ~self._eye_fills
         carried = self._scene.carry_back(residual, positions, seen, residual_back, camera)
         self._picture = np.clip(self._picture + 2 * (carried.astype(np.int16) - 128), 0, 255).astype(np.uint8)
-        texture, uv = self._scene.textured(self._picture)
-        self._renderer.set_texture(uv, texture)
-        if self._at_picture is not None:
-            self._at_picture.set_texture(uv, texture)
+        self._retexture()
         w, h = self.size
         self._still = self._picture if (w, h) == size else cv2.resize(self._picture, (w, h))
         self._moved = _UNSET
         self._move_background(still)
+
+    def _retexture(self) -> None:
+        """The scene textured by the picture as it is now, its eyes as shut as the lids are."""
+        texture, uv = self._scene.textured(self._lids.apply(self._picture, self._shut))
+        self._renderer.set_texture(uv, texture)
+        if self._at_picture is not None:
+            self._at_picture.set_texture(uv, texture)
 
     def _picture_renderer(self) -> Renderer:
         """The scene drawn at the reference picture's size (a renewal is measured there, whatever
@@ -222,7 +237,7 @@ class PictureView(FaceView):
         import cv2
 
         if self._at_picture is None:
-            texture, uv = self._scene.textured(self._picture)
+            texture, uv = self._scene.textured(self._lids.apply(self._picture, self._shut))
             self._at_picture = Renderer(self._scene.triangles, size=self._picture_size, material=UNLIT, lights=(),
                                         uv=uv, texture=texture, mouth_faces=self._scene.mouth_faces)
         moved = None if self._moved is _UNSET else self._moved

@@ -20,7 +20,7 @@ from facedeform.codec.face_model import BaseFace
 from facedeform.codec.mouth import MOUTH_PARAMS
 from facedeform.codec.picture import VIEW_DISTANCE, Placement, head_pivot, relative_pose
 from facedeform.codec.regions import DEFAULT_RULE
-from facedeform.codec.upper_face import UPPER_PARAMS
+from facedeform.codec.upper_face import LID_PARAMS, UPPER_PARAMS
 from facedeform.common.errors import InputError, NoFaceError
 from facedeform.common.stages import Tracker
 from facedeform.protocol.quantise import VECTOR_STEP, steps_for
@@ -35,7 +35,7 @@ RELAX = 0.8
 LAYOUTS = {
     "paper": PAPER_PARAMS + POSE_PARAMS[:3],
     "full": PAPER_PARAMS + UPPER_PARAMS + POSE_PARAMS,
-    "mouth": PAPER_PARAMS + MOUTH_PARAMS + POSE_PARAMS[:3],
+    "mouth": PAPER_PARAMS + MOUTH_PARAMS + LID_PARAMS + POSE_PARAMS[:3],
 }
 #: Layouts by name: the fixed ones; "personal": the coefficients of the face model's own
 #: motion basis (their names depend on the face), after the paper's 13 when the basis refines
@@ -60,7 +60,7 @@ def layout_names(layout: str, face: BaseFace) -> tuple[str, ...]:
         raise InputError("--params personal needs a face model with a motion basis: "
                          "fd-enroll CLIP -o me.fdface, then fd-send --face me.fdface")
     paper = PAPER_PARAMS if face.motion.over == "paper" else ()
-    return paper + face.motion.names + POSE_PARAMS[:3]
+    return paper + face.motion.names + LID_PARAMS + POSE_PARAMS[:3]
 
 
 def picture_names(names: tuple[str, ...], face: BaseFace, moving: bool = True) -> tuple[str, ...]:
@@ -111,9 +111,10 @@ class FaceAnalyser:
 
     layout: "paper" (the paper's 13 and head rotation), "full" (plus brows,
     lids, cheeks and head translation), "mouth" (the paper's 13, the richer
-    mouth and jaw of codec/mouth.py, head rotation), "personal" (the paper's
-    13 when the face's own motion basis refines them, the basis, head rotation)
-    or "auto" (``resolve_layout``); calibration_frames: how many frames with
+    mouth and jaw of codec/mouth.py, the lids, head rotation), "personal" (the
+    paper's 13 when the face's own motion basis refines them, the basis, the
+    lids, head rotation) or "auto" (``resolve_layout``); the lids of "mouth"
+    and "personal" take what the rest leaves over at them (``ModelFit.lids``); calibration_frames: how many frames with
     a face to choose the rest face from; neutral: a frame index to use instead;
     rule: the deformation rule (codec.regions.RULES) the receiver will use, as the
     stream header names it.
@@ -140,6 +141,10 @@ class FaceAnalyser:
         self._picture_width = 0 if face.picture is None else face.picture.image.shape[1]
         self._factor = 1.0  # the picture's width over the frames'
         self._upper = layout == "full"
+        self._lids = not self._upper and "lid_l" in self.names
+        #: The eyes' rims skip the landmark filter: a blink lasts 3-8 frames, and the filter took half of a
+        #: 3-frame one away; the lids' own dead zone (a twentieth of a blink) keeps their jitter off the wire.
+        self._lid_rims = sorted(face.meta["loops"]["eye_left"] + face.meta["loops"]["eye_right"])
         self._personal = layout == "personal"
         self._paper = self.names[:len(PAPER_PARAMS)] == PAPER_PARAMS
         self._translate = "tx" in self.names
@@ -224,6 +229,7 @@ class FaceAnalyser:
         head = self._head(pose)
         if self._landmark_filter is not None:
             target = self._landmark_filter(target)
+            target[self._lid_rims] = observed[self._lid_rims]
             head = self._pose_filter(head)
         paper = self.fit.paper(target) if self._paper else np.zeros(len(PAPER_PARAMS))
         parts = [paper] if self._paper else []
@@ -231,6 +237,8 @@ class FaceAnalyser:
             parts.append(self.fit.upper(target))
         if self._personal:
             parts.append(self.fit.motion(target, paper))
+        if self._lids:
+            parts.append(self.fit.lids(target, self.names[:sum(map(len, parts))], np.concatenate(parts)))
         params = np.concatenate(parts + [head, still])
         if self._param_filter is not None:
             params = self._param_filter(params)

@@ -23,7 +23,7 @@ import numpy as np
 from facedeform.codec.deform import EXTENDED_PARAMS, FREE, JAW_FOLLOWING, PAPER_PARAMS, Deformer, extended_params
 from facedeform.codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
 from facedeform.codec.regions import FEATURE_NAMES
-from facedeform.codec.upper_face import UPPER_PARAMS
+from facedeform.codec.upper_face import LID_PARAMS, UPPER_PARAMS
 
 THETA_RANGE = (-15.0, 45.0)  # degrees: a little closing past rest, a wide yawn
 #: Ridge weight, relative to each unknown's own normal-equation diagonal: keeps poorly
@@ -133,6 +133,10 @@ class ModelFit:
         self._upper_solve = _ridge_solver(bu, ridge)
         self._upper_basis = bu
         self._base = base
+        lid_columns = [UPPER_PARAMS.index(n) for n in LID_PARAMS]
+        lid_rows = up.basis.reshape(len(base), 3, -1)[:, :, lid_columns]
+        self._lid_landmarks = np.flatnonzero(np.abs(lid_rows).sum(axis=(1, 2)) > 1e-9)
+        self._lid_solve = _ridge_solver(lid_rows[self._lid_landmarks].reshape(-1, len(LID_PARAMS)), ridge)
 
         self._deformer = deformer
         motion = deformer.face.motion
@@ -178,6 +182,14 @@ class ModelFit:
         """(468, 3) target -> (len(UPPER_PARAMS),) brow, lid and cheek parameters."""
         d = np.asarray(target, dtype=np.float64)[self.upper_landmarks] - self._base[self.upper_landmarks]
         return self._upper_solve @ d.ravel()
+
+    def lids(self, target: np.ndarray, names: tuple[str, ...], values: np.ndarray) -> np.ndarray:
+        """(2,) lid_l, lid_r: the lid model's share of what the expression fitted so far (``values`` of
+        ``names``) leaves over at the lids of the (468, 3) target, so that a blink the rest of the
+        layout cannot show (a face's own basis from a clip without one) is still drawn."""
+        drawn = self._deformer.blend(extended_params(names, values))
+        v = self._lid_landmarks
+        return self._lid_solve @ (np.asarray(target, dtype=np.float64)[v] - drawn[v]).ravel()
 
     def motion(self, target: np.ndarray, paper: np.ndarray) -> np.ndarray:
         """(468, 3) target and its (13,) paper fit (zeros for a basis over the rest face) -> the face's

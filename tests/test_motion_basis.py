@@ -11,6 +11,7 @@ from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, PAPER_PARAMS
 from facedeform.codec.face_file import Face, decode_face, encode_face
 from facedeform.codec.face_model import load_base_face
 from facedeform.codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS, MotionBasis, learn_basis
+from facedeform.codec.upper_face import LID_PARAMS
 from facedeform.common.errors import InputError
 from facedeform.protocol.quantise import DEAD_ZONE
 from facedeform.sender.fit import ModelFit
@@ -137,7 +138,7 @@ def test_enrol_then_send_the_personal_layout_end_to_end(tmp_path, over):
     recv = np.load(tmp_path / "recv.npz")
     paper = PAPER_PARAMS if over == "paper" else ()
     # and where the head is in the picture, and how the picture moves if it has a background to show it
-    expected = paper + BASIS_PARAMS[:4] + POSE_PARAMS
+    expected = paper + BASIS_PARAMS[:4] + LID_PARAMS + POSE_PARAMS
     assert tuple(recv["names"]) in (expected, expected + GLOBAL_PARAMS)
     cols = slice(len(paper), len(paper) + 4)
     coeffs = recv["params"][:, cols]

@@ -332,7 +332,7 @@ def test_hostile_header_is_refused_before_allocation():
     assert MAX_MODEL < 2**32 - 1
     dec = StreamDecoder()  # a length field over the packet limit is skipped, not waited for
     events = dec.feed(frame_bytes(encode(header(), walk(1, 13))[:1]) + b"\xfd\x80\xff\xff\xff\xff\x0f")
-    assert dec.stats.skipped_bytes > 0 and len(events) == 1
+    assert dec.stats.skipped_bytes > 0 and len(events) == 2 and events[1].reason.startswith("packet fails")
 
 
 @cache
@@ -535,3 +535,17 @@ def test_a_keyframe_far_ahead_is_taken_once_enough_bytes_arrived():
     assert [f.seq for f in got] == list(range(2000)) and dec.ended
     assert [f.seq for f in got if f.concealed] == list(range(25, 1525))
     assert [e.seq for e in events if isinstance(e, Damage) and "ahead" in e.reason] == [25]
+
+
+def test_damage_before_the_first_keyframe_is_reported():
+    """A byte stream starts at its beginning: its first keyframe damaged is damage to report (it was
+    concealed in silence, as if the receiver had joined late), once until the next keyframe."""
+    h = header(key_interval=10)
+    packets = encode(h, walk(30, 13), fpp=2)
+    data = bytearray(frame_bytes(packets))
+    first_key = len(frame_bytes(packets[:1]))  # the header packet, then the first keyframe
+    data[first_key + 4] ^= 0xFF
+    events, dec = decode(bytes(data))
+    damage = [e for e in events if isinstance(e, Damage)]
+    assert len(damage) == 1 and damage[0].seq == 0 and dec.stats.damaged == 1
+    assert len(frames(events)) == 30  # concealed until the keyframe at frame 10, then decoded

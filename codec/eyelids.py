@@ -1,0 +1,102 @@
+"""Closed lids in the whole picture: skin over the eye as the lids meet.
+
+The picture view draws the face by warping the reference picture, whose eyes
+are open. Lids that meet in the deformed mesh then only squash the open eye
+(iris and white) into a dark slit, which neither looks nor tracks as a closed
+eye: on the dev clips where the speaker blinks, the tracker saw the oracle's
+warped blinks with an eye-opening correlation of only 0.74-0.78. Here each
+eye's opening and a band around it (EDGE of the eye's width) is filled with
+the skin just below it, with a line of lashes where the lids meet, and as the lids
+close the texture there crossfades to that skin, from CLOSING to CLOSED of the
+lid gap's closure; the mesh carries it, so a closed eye shows lid skin where
+the eye was. The thresholds are in the tracker's measure: its mesh never
+brings the lids much past half their rest gap together, even in a shut eye
+(0.45-0.52 in the dev clip liveportrait_d11's blink, whose frames show the
+eyes closed). Both ends compute it from the same picture, so the sender's closed
+loop draws what the receiver draws.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from facedeform.codec.face_model import BaseFace
+
+#: Upper and lower lid middles and the corners of each eye (face-right, face-left): landmark indices.
+LIDS = ((159, 145), (386, 374))
+CORNERS = ((33, 133), (362, 263))
+LOOPS = ("eye_right", "eye_left")
+#: The lid gap's closure (0 open as at rest, 1 shut) where the skin starts showing and where it has replaced the eye.
+CLOSING, CLOSED = 0.1, 0.3
+#: The crossfade moves in these steps, so that a still eye does not retexture the scene every frame.
+STEPS = 8
+EDGE = 0.15  # the band around the opening that is filled too (lashes, the lid's edge), over the eye's width
+BELOW = 2  # pixels below an eye's filled band that its lid skin is taken from
+LASH = 0.06  # the shut lids' line, drawn in the darkest tenth of the eye's colours, over the eye's width
+LASH_BITS = 4  # its points' fractional bits (OpenCV's shift), for a line placed to the subpixel
+LASH_SHIFT = 1 << LASH_BITS
+
+
+class Eyelids:
+    """For one face and its reference picture's pixels of the face vertices at rest ``pixels`` (n, 2)."""
+
+    def __init__(self, face: BaseFace, pixels: np.ndarray, size: tuple[int, int]) -> None:
+        rest = np.asarray(face.vertices, dtype=np.float64)
+        self._rest_gap = np.array([np.linalg.norm(rest[a] - rest[b]) for a, b in LIDS])
+        width, height = size
+        self._masks, self._lashes = [], []
+        for loop, (a, b) in zip(LOOPS, CORNERS):
+            ring = face.meta["loops"][loop]  # outer corner, upper lid, inner corner (index 8), lower lid
+            opening = np.zeros((height, width), np.uint8)
+            cv2.fillPoly(opening, [np.round(pixels[ring]).astype(np.int32)], 255)
+            eye_width = float(np.linalg.norm(pixels[a] - pixels[b]))
+            grow = max(1, int(round(EDGE * eye_width)))
+            self._masks.append(cv2.dilate(opening, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8)))
+            lower = pixels[ring[8:] + ring[:1]]  # where the shut lids meet: the lower lid at rest
+            self._lashes.append((np.round(lower * LASH_SHIFT).astype(np.int32),
+                                 max(1, int(round(LASH * eye_width)))))
+        self._soft = [cv2.GaussianBlur(m, (0, 0), 1.0).astype(np.float32)[..., None] / 255 for m in self._masks]
+        self._skin: np.ndarray | None = None  # the picture with both eyes filled, for self._of
+        self._of: np.ndarray | None = None
+
+    def weights(self, deformed: np.ndarray) -> tuple[float, ...]:
+        """How far each eye (face-right, face-left) shows skin instead of the eye, 0 to 1 in
+        1/STEPS, for a pose-free deformed face (468+, 3)."""
+        gap = np.array([np.linalg.norm(deformed[a] - deformed[b]) for a, b in LIDS])
+        closure = 1.0 - gap / np.maximum(self._rest_gap, 1e-9)
+        w = np.clip((closure - CLOSING) / (CLOSED - CLOSING), 0.0, 1.0)
+        return tuple(float(x) for x in np.round(w * STEPS) / STEPS)
+
+    def apply(self, picture: np.ndarray, weights: tuple[float, ...]) -> np.ndarray:
+        """``picture`` (the reference picture, or it renewed) with each eye crossfaded to skin by its weight."""
+        if not any(weights):
+            return picture
+        if self._of is not picture:
+            self._skin = _lid_skin(picture, self._masks)
+            for mask, (line, thickness) in zip(self._masks, self._lashes):
+                dark = np.percentile(picture[mask > 0], 10, axis=0)  # the lashes' colour
+                cv2.polylines(self._skin, [line], False, [float(c) for c in dark], thickness, cv2.LINE_AA,
+                              LASH_BITS)
+            self._of = picture
+        blend = sum(w * soft for w, soft in zip(weights, self._soft))
+        out = picture + blend * (self._skin.astype(np.float32) - picture)
+        return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def _lid_skin(picture: np.ndarray, masks: list[np.ndarray]) -> np.ndarray:
+    """``picture`` with each eye's ``mask`` filled by the skin just below it, column by column, and
+    smoothed along the eye: a shut lid looks like the skin under the eye, while the skin above it
+    reaches the brows (inpainting from the whole rim smeared them down over the eye)."""
+    out = picture.copy()
+    height, width = picture.shape[:2]
+    for mask in masks:
+        ys, xs = np.nonzero(mask)
+        lowest = np.full(width, -1)
+        np.maximum.at(lowest, xs, ys)
+        out[ys, xs] = picture[np.minimum(lowest[xs] + BELOW, height - 1), xs]
+        x0, x1, y0, y1 = xs.min(), xs.max() + 1, ys.min(), ys.max() + 1
+        smooth = cv2.GaussianBlur(out[y0:y1, x0:x1], (0, 0), sigmaX=2.0, sigmaY=0.5)
+        inside = mask[y0:y1, x0:x1] > 0
+        out[y0:y1, x0:x1][inside] = smooth[inside]
+    return out
