@@ -119,6 +119,8 @@ def main() -> None:
     p.add_argument("--bitrate", type=float, metavar="KBPS", help="fd-send --bitrate, the picture layer off "
                    "(default: fd-send's defaults, a quality level)")
     p.add_argument("--quality", type=int, help="fd-send --quality (default: fd-send's)")
+    p.add_argument("--motion", type=int, default=MAX_COMPONENTS, help="fd-enroll --motion: most patterns in the "
+                   "speaker's motion basis (default: %(default)s, as fd-experiment enrols)")
     args = p.parse_args()
     options: dict = {} if args.quality is None else {"quality": args.quality}
     if args.bitrate is not None:
@@ -130,7 +132,7 @@ def main() -> None:
         for path in args.clips:
             clip = prepare(path, 256, work)
             half = len(clip.frames) / 2 / clip.fps
-            face = facedeform.enroll(str(clip.path), seconds=1.0, motion=MAX_COMPONENTS, motion_seconds=half)
+            face = facedeform.enroll(str(clip.path), seconds=1.0, motion=args.motion, motion_seconds=half)
             rows.append(row := run(clip, face, work, options))
             print(json.dumps(row), flush=True)
     (args.out / "expression.json").write_text(json.dumps(rows, indent=1) + "\n")

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from facedeform.codec.deform import PAPER_PARAMS
-from facedeform.codec.face_file import personal_face, save_face_file
+from facedeform.codec.face_file import PATTERN_SCALE, personal_face, save_face_file
 from facedeform.codec.face_model import ReferencePicture, load_base_face, mouth_vertices
 from facedeform.codec.picture import Placement
 from facedeform.protocol.stream import Header, PacketEncoder, StreamDecoder, StreamEncoder, steps_for
@@ -171,17 +171,21 @@ def a_person(seed=0):
     return neutral, texture
 
 def as_version(data: bytes, version: int) -> bytes:
-    """A current face file rewritten as an older version (1-3) would have held it: the feature points
-    written out, the motion basis's patterns as <f4, no ring weights; before 3, no picture; before 2,
-    no motion basis."""
+    """A current face file rewritten as an older version (1-4) would have held it: the motion basis's
+    patterns as <f2 in version 4; before it the feature points written out, the patterns as <f4, no ring
+    weights; before 3, no picture; before 2, no motion basis."""
     n = int.from_bytes(data[8:12], "little")
     info = json.loads(data[12:12 + n])
     pos = 12 + n
     mesh = data[pos:pos + 20 * info["vertices"] + 6 * info["faces"]]
     pos += len(mesh)
     k, c, _ = info.get("motion", (0, 0, ""))
-    motion = data[pos:pos + 2 * k] + np.frombuffer(data, "<f2", 3 * c * k, pos + 2 * k).astype("<f4").tobytes()
-    images = data[pos + 2 * k + 6 * c * k:]
+    patterns = np.frombuffer(data, "<i1", 3 * c * k, pos + 2 * k) / PATTERN_SCALE
+    motion = data[pos:pos + 2 * k] + patterns.astype("<f2" if version == 4 else "<f4").tobytes()
+    images = data[pos + 2 * k + 3 * c * k:]
+    if version == 4:
+        text = json.dumps(info).encode()
+        return data[:6] + bytes([version, 0]) + len(text).to_bytes(4, "little") + text + mesh + motion + images
     if info["meta"] == "base":
         info["meta"] = BASE.meta
     info.pop("rings", None)

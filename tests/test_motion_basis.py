@@ -60,7 +60,8 @@ def test_face_file_carries_the_basis_and_old_files_still_read():
     back = decode_face(data)
     assert back.motion.over == face.motion.over
     np.testing.assert_array_equal(back.motion.vertices, face.motion.vertices)
-    np.testing.assert_allclose(back.motion.vectors, face.motion.vectors, rtol=1e-3)  # stored as <f2
+    # stored as <i1, 127 for 1: within half a step of each coordinate
+    np.testing.assert_allclose(back.motion.vectors, face.motion.vectors, rtol=0, atol=0.5 / 127 + 1e-12)
     plain = encode_face(load_base_face())
     assert decode_face(plain).motion is None
     assert decode_face(as_version(plain, 1)).motion is None  # version 1 had no motion section
