@@ -5,15 +5,16 @@ are open. Lids that meet in the deformed mesh then only squash the open eye
 (iris and white) into a dark slit, which neither looks nor tracks as a closed
 eye: on the dev clips where the speaker blinks, the tracker saw the oracle's
 warped blinks with an eye-opening correlation of only 0.74-0.78. Here each
-eye's opening and a band around it (EDGE of the eye's width) is filled with
-the skin just below it, with a line of lashes where the lids meet, and as the lids
+eye's opening and a band around it (EDGE of the eye's width) is filled with the
+skin just below it, with a line of lashes where the lids meet, and as the lids
 close the texture there crossfades to that skin, from CLOSING to CLOSED of the
 lid gap's closure; the mesh carries it, so a closed eye shows lid skin where
-the eye was. The thresholds are in the tracker's measure: its mesh never
-brings the lids much past half their rest gap together, even in a shut eye
-(0.45-0.52 in the dev clip liveportrait_d11's blink, whose frames show the
-eyes closed). Both ends compute it from the same picture, so the sender's closed
-loop draws what the receiver draws.
+the eye was. Below CLOSING the lid slides over the eye instead: the eye's lower
+part keeps its own scale where the mesh squashes the opening, so lids lowered
+over eyes that look down cover the irises' tops. The sender sends the lids as
+far closed as they are, not as far as the tracker says (sender/fit.LID_GAIN).
+Both ends compute it from the same picture, so the
+sender's closed loop draws what the receiver draws.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ LIDS = ((159, 145), (386, 374))
 CORNERS = ((33, 133), (362, 263))
 LOOPS = ("eye_right", "eye_left")
 #: The lid gap's closure (0 open as at rest, 1 shut) where the skin starts showing and where it has replaced the eye.
-CLOSING, CLOSED = 0.1, 0.3
+CLOSING, CLOSED = 0.7, 0.95
 #: The crossfade moves in these steps, so that a still eye does not retexture the scene every frame.
 STEPS = 8
 EDGE = 0.15  # the band around the opening that is filled too (lashes, the lid's edge), over the eye's width
@@ -45,11 +46,12 @@ class Eyelids:
         rest = np.asarray(face.vertices, dtype=np.float64)
         self._rest_gap = np.array([np.linalg.norm(rest[a] - rest[b]) for a, b in LIDS])
         width, height = size
-        self._masks, self._lashes = [], []
+        self._masks, self._lashes, self._openings = [], [], []
         for loop, (a, b) in zip(LOOPS, CORNERS):
             ring = face.meta["loops"][loop]  # outer corner, upper lid, inner corner (index 8), lower lid
             opening = np.zeros((height, width), np.uint8)
             cv2.fillPoly(opening, [np.round(pixels[ring]).astype(np.int32)], 255)
+            self._openings.append(_Opening(opening))
             eye_width = float(np.linalg.norm(pixels[a] - pixels[b]))
             grow = max(1, int(round(EDGE * eye_width)))
             self._masks.append(cv2.dilate(opening, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8)))
@@ -61,17 +63,24 @@ class Eyelids:
         self._of: np.ndarray | None = None
 
     def weights(self, deformed: np.ndarray) -> tuple[float, ...]:
-        """How far each eye (face-right, face-left) shows skin instead of the eye, 0 to 1 in
+        """How far each eye (face-right, face-left) is closed, 0 (as at rest or wider) to 1 (shut) in
         1/STEPS, for a pose-free deformed face (468+, 3)."""
         gap = np.array([np.linalg.norm(deformed[a] - deformed[b]) for a, b in LIDS])
-        closure = 1.0 - gap / np.maximum(self._rest_gap, 1e-9)
-        w = np.clip((closure - CLOSING) / (CLOSED - CLOSING), 0.0, 1.0)
-        return tuple(float(x) for x in np.round(w * STEPS) / STEPS)
+        closure = np.clip(1.0 - gap / np.maximum(self._rest_gap, 1e-9), 0.0, 1.0)
+        return tuple(float(x) for x in np.round(closure * STEPS) / STEPS)
 
-    def apply(self, picture: np.ndarray, weights: tuple[float, ...]) -> np.ndarray:
-        """``picture`` (the reference picture, or it renewed) with each eye crossfaded to skin by its weight."""
-        if not any(weights):
+    def apply(self, picture: np.ndarray, closures: tuple[float, ...]) -> np.ndarray:
+        """``picture`` (the reference picture, or it renewed) with each eye as far closed as given:
+        the lid slides over it (the eye's lower part keeps its own scale where the mesh squashes
+        the opening), and past CLOSING the eye crossfades to skin."""
+        if not any(closures):
             return picture
+        out = picture.copy()
+        for opening, closure in zip(self._openings, closures):
+            opening.slide(picture, out, closure)
+        weights = [float(np.clip((c - CLOSING) / (CLOSED - CLOSING), 0.0, 1.0)) for c in closures]
+        if not any(weights):
+            return out
         if self._of is not picture:
             self._skin = _lid_skin(picture, self._masks)
             for mask, (line, thickness) in zip(self._masks, self._lashes):
@@ -80,8 +89,31 @@ class Eyelids:
                               LASH_BITS)
             self._of = picture
         blend = sum(w * soft for w, soft in zip(weights, self._soft))
-        out = picture + blend * (self._skin.astype(np.float32) - picture)
-        return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+        return np.clip(np.rint(out + blend * (self._skin.astype(np.float32) - out)), 0, 255).astype(np.uint8)
+
+
+class _Opening:
+    """One eye's opening in the picture, for sliding its lid: per column, the opening's top and
+    bottom rows."""
+
+    def __init__(self, mask: np.ndarray) -> None:
+        ys, xs = np.nonzero(mask)
+        self._x0, self._x1, self._y0, self._y1 = xs.min(), xs.max() + 1, ys.min(), ys.max() + 1
+        self._inside = mask[self._y0:self._y1, self._x0:self._x1] > 0
+        bottom = np.full(mask.shape[1], -1)
+        np.maximum.at(bottom, xs, ys)
+        self._bottom = bottom[self._x0:self._x1].astype(np.float32)
+
+    def slide(self, picture: np.ndarray, out: np.ndarray, closure: float) -> None:
+        """Writes into ``out`` the opening as the mesh will squash it to (1 - closure) of its height:
+        each column's lower (1 - closure) of the eye, stretched to the whole opening."""
+        if closure <= 0:
+            return
+        y, x = np.mgrid[self._y0:self._y1, self._x0:self._x1].astype(np.float32)
+        source_y = self._bottom - (self._bottom - y) * (1.0 - closure)
+        moved = cv2.remap(picture, x, source_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        region = out[self._y0:self._y1, self._x0:self._x1]
+        region[self._inside] = moved[self._inside]
 
 
 def _lid_skin(picture: np.ndarray, masks: list[np.ndarray]) -> np.ndarray:

@@ -156,7 +156,7 @@ class PictureView(FaceView):
         self._at_picture: Renderer | None = None  # the scene at the picture's size, when the output's differs
         self._lids = Eyelids(face, self._scene.rest_pixels, self._picture_size)
         self._eye_fills = face.eye_faces
-        self._shut: tuple[float, ...] = (0.0, 0.0)  # how far each eye shows lid skin (codec/eyelids.py)
+        self._shut: tuple[float, ...] = (0.0, 0.0)  # how far each eye is closed (codec/eyelids.py)
 
     def render(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None) -> np.ndarray:
         """The picture of frame ``seq`` (None: the one after the last), renewed first if a renewal

@@ -23,13 +23,17 @@ import numpy as np
 from facedeform.codec.deform import EXTENDED_PARAMS, FREE, JAW_FOLLOWING, PAPER_PARAMS, Deformer, extended_params
 from facedeform.codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
 from facedeform.codec.regions import FEATURE_NAMES
-from facedeform.codec.upper_face import LID_PARAMS, UPPER_PARAMS
+from facedeform.codec.upper_face import UPPER_PARAMS
 
 THETA_RANGE = (-15.0, 45.0)  # degrees: a little closing past rest, a wide yawn
 #: Ridge weight, relative to each unknown's own normal-equation diagonal: keeps poorly
 #: observed components near rest instead of chasing tracker noise.
 RIDGE = 1e-3
 _GRID = np.radians(np.linspace(*THETA_RANGE, 61))
+#: How much further lids close than the tracker says: its mesh brings a shut eye's lids only about half
+#: their rest gap together (0.45-0.52 in liveportrait_d11's blink), and lids lowered over eyes that look
+#: down, irises half covered, 0.26-0.41 (sadtalker_WDA_KatieHill).
+LID_GAIN = 2.0
 #: Weights, relative to the lower lip's own normal-equation diagonal, with which the fit of a face that
 #: would fold tries holding the lower lip toward the jaw's carry (ModelFit.paper).
 LIP_HOLD = (0.0625, 0.25, 1.0, 4.0, 16.0, 64.0)
@@ -133,10 +137,12 @@ class ModelFit:
         self._upper_solve = _ridge_solver(bu, ridge)
         self._upper_basis = bu
         self._base = base
-        lid_columns = [UPPER_PARAMS.index(n) for n in LID_PARAMS]
-        lid_rows = up.basis.reshape(len(base), 3, -1)[:, :, lid_columns]
-        self._lid_landmarks = np.flatnonzero(np.abs(lid_rows).sum(axis=(1, 2)) > 1e-9)
-        self._lid_solve = _ridge_solver(lid_rows[self._lid_landmarks].reshape(-1, len(LID_PARAMS)), ridge)
+        lids = [p for p in deformer.face.meta["upper_face"]["feature_points"].values() if p["role"] == "lid"]
+        #: per lid parameter, (upper-lid landmarks, the lower-lid ones each closes onto)
+        self._lid_pairs = [(np.array([p["landmark"] for p in lids if p["side"] == side]),
+                            np.array([p["closes_to"] for p in lids if p["side"] == side]))
+                           for side in ("left", "right")]
+        self._lid_rest = [float(self._gaps(base, pair).sum()) for pair in self._lid_pairs]
 
         self._deformer = deformer
         motion = deformer.face.motion
@@ -184,12 +190,26 @@ class ModelFit:
         return self._upper_solve @ d.ravel()
 
     def lids(self, target: np.ndarray, names: tuple[str, ...], values: np.ndarray) -> np.ndarray:
-        """(2,) lid_l, lid_r: the lid model's share of what the expression fitted so far (``values`` of
-        ``names``) leaves over at the lids of the (468, 3) target, so that a blink the rest of the
-        layout cannot show (a face's own basis from a clip without one) is still drawn."""
+        """(2,) lid_l, lid_r: how much further the lids of the (468, 3) target are closed than the
+        expression fitted so far (``values`` of ``names``) draws them, so that a blink the rest of
+        the layout cannot show (a face's own basis from a clip without one) is still drawn.
+
+        Measured as the lids' gaps, not fitted to every vertex the lid model moves: lid 1 lays
+        each upper-lid landmark on its lower-lid partner, so the value is the gap still to close
+        over the gap at rest (summed over each eye's seven pairs). A least-squares fit over the
+        lid region gave two thirds of that in the dev clips' blinks, which then looked half open.
+        The tracker's closing is taken LID_GAIN times."""
         drawn = self._deformer.blend(extended_params(names, values))
-        v = self._lid_landmarks
-        return self._lid_solve @ (np.asarray(target, dtype=np.float64)[v] - drawn[v]).ravel()
+        target = np.asarray(target, dtype=np.float64)
+        lids = []
+        for pair, rest in zip(self._lid_pairs, self._lid_rest):
+            seen = max(0.0, rest - LID_GAIN * (rest - self._gaps(target, pair).sum()))  # the gap, as it is
+            lids.append((self._gaps(drawn, pair).sum() - seen) / rest)
+        return np.array(lids)
+
+    @staticmethod
+    def _gaps(vertices: np.ndarray, pair: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        return np.linalg.norm(vertices[pair[0]] - vertices[pair[1]], axis=1)
 
     def motion(self, target: np.ndarray, paper: np.ndarray) -> np.ndarray:
         """(468, 3) target and its (13,) paper fit (zeros for a basis over the rest face) -> the face's
