@@ -20,6 +20,7 @@ import numpy as np
 
 from facedeform.codec.deform import HEAD_DEPTH, rotation_from_vector, rotation_vector
 from facedeform.codec.face_model import BaseFace, ReferencePicture, mouth_vertices
+from facedeform.codec.mouth_interior import MouthInterior
 
 #: How far the receiver's camera is from the face (base-face units), to turn scale changes into
 #: depth: tz = VIEW_DISTANCE * (1 - 1 / s) for a head s times its reference size.
@@ -219,6 +220,10 @@ class SceneMesh:
         pixels = (np.concatenate([rest, ring_rest]) * _FLIP)[:, :2]
         face_triangles, mouth = faces.copy(), face.mouth_faces
         self._mouth = np.zeros(0, np.int64)
+        #: the person's open mouth as a mouth less open shows it (codec/mouth_interior.py), when drawn,
+        #: and the texture's row where it starts (column 0)
+        self.interior: MouthInterior | None = None
+        self.mouth_row = 0
         self._open = None  # (open mouth image, its vertices' pixels) when the scene draws the person's own
         height, width = picture.image.shape[:2]
         mouth_image, mouth_points = picture.mouth, picture.mouth_points
@@ -229,6 +234,9 @@ class SceneMesh:
             copies[self._mouth] = len(pixels) + np.arange(len(self._mouth))
             face_triangles[mouth] = copies[faces[mouth]]
             self._open = (mouth_image, np.asarray(mouth_points, dtype=np.float64))
+            loops = face.meta["loops"]
+            self.interior = MouthInterior(mouth_image, self._open[1], self._mouth, loops["inner_lip_upper"],
+                                          loops["inner_lip_lower"])
             mouth = np.zeros(len(faces), bool)
         self.rest_pixels = pixels  # of the face and ring vertices in the reference picture
         self.texture, self.uv = self.textured(picture.image)
@@ -240,11 +248,12 @@ class SceneMesh:
         self._rest_positions = np.concatenate([rest, ring_rest, rest[self._mouth]])
         self._covered: np.ndarray | None = None
 
-    def textured(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def textured(self, image: np.ndarray, mouth: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(texture, (vertices, 2) uv with v up) that texture the scene by ``image``, a picture in the
         reference picture's place (the reference itself, or it renewed). With the person's open
-        mouth, it goes below the picture in one texture, the picture's edges repeated as far as
-        the rings reach (the clamp the picture alone would have), at most half a side."""
+        mouth (or ``mouth``, the same remapped: :attr:`interior`), it goes below the picture in one
+        texture, the picture's edges repeated as far as the rings reach (the clamp the picture
+        alone would have), at most half a side."""
         height, width = image.shape[:2]
         pixels = self.rest_pixels
         if self._open is None:
@@ -252,7 +261,8 @@ class SceneMesh:
         lo, hi = _padding(pixels, (width, height), max(width, height) // 2)
         padded = cv2.copyMakeBorder(image, lo[1], hi[1], lo[0], hi[0], cv2.BORDER_REPLICATE)
         mouth_image, mouth_points = self._open
-        below = padded.shape[0] + MOUTH_GAP
+        mouth_image = mouth_image if mouth is None else mouth
+        below = self.mouth_row = padded.shape[0] + MOUTH_GAP
         atlas = np.zeros((below + mouth_image.shape[0], max(padded.shape[1], mouth_image.shape[1]), 3), np.uint8)
         atlas[:padded.shape[0], :padded.shape[1]], atlas[below:, :mouth_image.shape[1]] = padded, mouth_image
         placed = np.concatenate([np.clip(pixels + lo, 0, [padded.shape[1], padded.shape[0]]),

@@ -175,6 +175,15 @@ class Renderer:
         """Texture with ``texture`` at ``uv`` from the next frame on: as the constructor's (a renewed picture)."""
         self._uv, self._texture = self._parse_texture(uv, texture)
 
+    def patch_texture(self, x: int, y: int, image: np.ndarray) -> None:
+        """Replace the texture's pixels from column ``x``, row ``y`` (from the top) by ``image``
+        ((h, w, 3) uint8, inside the texture): a part that changes often (the open mouth), without
+        converting the whole texture again."""
+        h, w = image.shape[:2]
+        if not (0 <= x and 0 <= y and y + h <= self._texture.shape[0] and x + w <= self._texture.shape[1]):
+            raise ValueError(f"a {w}x{h} patch at ({x}, {y}) is outside the texture")
+        self._texture[y:y + h, x:x + w] = self._decode[image]
+
     def set_background(self, background) -> None:
         """Draw over ``background`` from the next frame on: as the constructor's (a moving camera's picture)."""
         self._background = self._parse_background(background)

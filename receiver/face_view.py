@@ -11,6 +11,7 @@ from facedeform.codec.camera import Camera
 from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, Deformer
 from facedeform.codec.eyelids import Eyelids
 from facedeform.codec.face_model import BaseFace
+from facedeform.codec.mouth_interior import LOWER_LIP, UPPER_LIP
 from facedeform.codec.picture import SceneMesh, face_texture, frame_placement, global_matrix
 from facedeform.codec.render import UNLIT, Renderer
 from facedeform.common.errors import BitstreamError, InputError
@@ -157,6 +158,7 @@ class PictureView(FaceView):
         self._lids = Eyelids(face, self._scene.rest_pixels, self._picture_size)
         self._eye_fills = face.eye_faces
         self._shut: tuple[float, ...] = (0.0, 0.0)  # how far each eye is closed (codec/eyelids.py)
+        self._open = 1.0  # how open the mouth is, against the person's open mouth (codec/mouth_interior.py)
 
     def render(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None) -> np.ndarray:
         """The picture of frame ``seq`` (None: the one after the last), renewed first if a renewal
@@ -167,9 +169,16 @@ class PictureView(FaceView):
         positions, still, deformed = self._placed(self._full(params), shape)
         self._move_background(still)
         shut = self._lids.weights(deformed)
+        interior = self._scene.interior
+        opening = 1.0 if interior is None else interior.ratio(positions[UPPER_LIP], positions[LOWER_LIP])
         if shut != self._shut:
-            self._shut = shut
+            self._shut, self._open = shut, opening
             self._retexture()
+        elif opening != self._open and interior is not None:
+            self._open = opening
+            for renderer in (self._renderer, self._at_picture):
+                if renderer is not None:
+                    renderer.patch_texture(0, self._scene.mouth_row, interior.drawn(opening))
         if self._renewal is not None and self._renewal[0] <= self._seq:
             if self._renewal[0] == self._seq:
                 self._renew(positions, still, *self._renewal[1:])
@@ -226,10 +235,15 @@ class PictureView(FaceView):
 
     def _retexture(self) -> None:
         """The scene textured by the picture as it is now, its eyes as shut as the lids are."""
-        texture, uv = self._scene.textured(self._lids.apply(self._picture, self._shut))
+        texture, uv = self._textured()
         self._renderer.set_texture(uv, texture)
         if self._at_picture is not None:
             self._at_picture.set_texture(uv, texture)
+
+    def _textured(self) -> tuple[np.ndarray, np.ndarray]:
+        interior = self._scene.interior
+        return self._scene.textured(self._lids.apply(self._picture, self._shut),
+                                    None if interior is None else interior.drawn(self._open))
 
     def _picture_renderer(self) -> Renderer:
         """The scene drawn at the reference picture's size (a renewal is measured there, whatever
@@ -237,7 +251,7 @@ class PictureView(FaceView):
         import cv2
 
         if self._at_picture is None:
-            texture, uv = self._scene.textured(self._lids.apply(self._picture, self._shut))
+            texture, uv = self._textured()
             self._at_picture = Renderer(self._scene.triangles, size=self._picture_size, material=UNLIT, lights=(),
                                         uv=uv, texture=texture, mouth_faces=self._scene.mouth_faces)
         moved = None if self._moved is _UNSET else self._moved
