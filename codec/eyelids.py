@@ -37,6 +37,7 @@ BELOW = 2  # pixels below an eye's filled band that its lid skin is taken from
 LASH = 0.06  # the shut lids' line, drawn in the darkest tenth of the eye's colours, over the eye's width
 LASH_BITS = 4  # its points' fractional bits (OpenCV's shift), for a line placed to the subpixel
 LASH_SHIFT = 1 << LASH_BITS
+MARGIN = 8  # pixels around the eyes' bands in the box the lids change: the skin below, the blur
 
 
 class Eyelids:
@@ -46,20 +47,26 @@ class Eyelids:
         rest = np.asarray(face.vertices, dtype=np.float64)
         self._rest_gap = np.array([np.linalg.norm(rest[a] - rest[b]) for a, b in LIDS])
         width, height = size
-        self._masks, self._lashes, self._openings = [], [], []
+        openings, masks, lashes = [], [], []
         for loop, (a, b) in zip(LOOPS, CORNERS):
             ring = face.meta["loops"][loop]  # outer corner, upper lid, inner corner (index 8), lower lid
             opening = np.zeros((height, width), np.uint8)
             cv2.fillPoly(opening, [np.round(pixels[ring]).astype(np.int32)], 255)
-            self._openings.append(_Opening(opening))
+            openings.append(opening)
             eye_width = float(np.linalg.norm(pixels[a] - pixels[b]))
             grow = max(1, int(round(EDGE * eye_width)))
-            self._masks.append(cv2.dilate(opening, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8)))
-            lower = pixels[ring[8:] + ring[:1]]  # where the shut lids meet: the lower lid at rest
-            self._lashes.append((np.round(lower * LASH_SHIFT).astype(np.int32),
-                                 max(1, int(round(LASH * eye_width)))))
+            masks.append(cv2.dilate(opening, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8)))
+            lashes.append((pixels[ring[8:] + ring[:1]], max(1, int(round(LASH * eye_width)))))  # the lower lid
+        # everything happens in one box around both eyes: a frame whose lids move changes only it
+        ys, xs = np.nonzero(np.maximum(*masks))
+        x0, y0 = max(0, xs.min() - MARGIN), max(0, ys.min() - MARGIN)
+        x1, y1 = min(width, xs.max() + 1 + MARGIN), min(height, ys.max() + 1 + MARGIN)
+        self.box = (x0, y0, x1, y1)
+        self._openings = [_Opening(m[y0:y1, x0:x1]) for m in openings]
+        self._masks = [m[y0:y1, x0:x1] for m in masks]
+        self._lashes = [(np.round((line - [x0, y0]) * LASH_SHIFT).astype(np.int32), thick) for line, thick in lashes]
         self._soft = [cv2.GaussianBlur(m, (0, 0), 1.0).astype(np.float32)[..., None] / 255 for m in self._masks]
-        self._skin: np.ndarray | None = None  # the picture with both eyes filled, for self._of
+        self._skin: np.ndarray | None = None  # the box with both eyes filled, for the picture self._of
         self._of: np.ndarray | None = None
 
     def weights(self, deformed: np.ndarray) -> tuple[float, ...]:
@@ -70,21 +77,31 @@ class Eyelids:
         return tuple(float(x) for x in np.round(closure * STEPS) / STEPS)
 
     def apply(self, picture: np.ndarray, closures: tuple[float, ...]) -> np.ndarray:
-        """``picture`` (the reference picture, or it renewed) with each eye as far closed as given:
-        the lid slides over it (the eye's lower part keeps its own scale where the mesh squashes
-        the opening), and past CLOSING the eye crossfades to skin."""
+        """``picture`` (the reference picture, or it renewed) with each eye as far closed as given
+        (:meth:`region` in :attr:`box`)."""
         if not any(closures):
             return picture
+        x0, y0, x1, y1 = self.box
         out = picture.copy()
+        out[y0:y1, x0:x1] = self.region(picture, closures)
+        return out
+
+    def region(self, picture: np.ndarray, closures: tuple[float, ...]) -> np.ndarray:
+        """The :attr:`box` of ``picture`` with each eye as far closed as given: the lid slides over
+        it (the eye's lower part keeps its own scale where the mesh squashes the opening), and
+        past CLOSING the eye crossfades to skin."""
+        x0, y0, x1, y1 = self.box
+        crop = picture[y0:y1, x0:x1]
+        out = crop.copy()
         for opening, closure in zip(self._openings, closures):
-            opening.slide(picture, out, closure)
+            opening.slide(crop, out, closure)
         weights = [float(np.clip((c - CLOSING) / (CLOSED - CLOSING), 0.0, 1.0)) for c in closures]
         if not any(weights):
             return out
         if self._of is not picture:
-            self._skin = _lid_skin(picture, self._masks)
+            self._skin = _lid_skin(crop, self._masks)
             for mask, (line, thickness) in zip(self._masks, self._lashes):
-                dark = np.percentile(picture[mask > 0], 10, axis=0)  # the lashes' colour
+                dark = np.percentile(crop[mask > 0], 10, axis=0)  # the lashes' colour
                 cv2.polylines(self._skin, [line], False, [float(c) for c in dark], thickness, cv2.LINE_AA,
                               LASH_BITS)
             self._of = picture

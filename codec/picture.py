@@ -224,6 +224,7 @@ class SceneMesh:
         #: and the texture's row where it starts (column 0)
         self.interior: MouthInterior | None = None
         self.mouth_row = 0
+        self.picture_at = (0, 0)  # the texture's column and row of the picture's top left
         self._open = None  # (open mouth image, its vertices' pixels) when the scene draws the person's own
         height, width = picture.image.shape[:2]
         mouth_image, mouth_points = picture.mouth, picture.mouth_points
@@ -259,6 +260,7 @@ class SceneMesh:
         if self._open is None:
             return image, np.column_stack([pixels[:, 0] / width, 1.0 - pixels[:, 1] / height])
         lo, hi = _padding(pixels, (width, height), max(width, height) // 2)
+        self.picture_at = (int(lo[0]), int(lo[1]))
         padded = cv2.copyMakeBorder(image, lo[1], hi[1], lo[0], hi[0], cv2.BORDER_REPLICATE)
         mouth_image, mouth_points = self._open
         mouth_image = mouth_image if mouth is None else mouth

@@ -171,14 +171,14 @@ class PictureView(FaceView):
         shut = self._lids.weights(deformed)
         interior = self._scene.interior
         opening = 1.0 if interior is None else interior.ratio(positions[UPPER_LIP], positions[LOWER_LIP])
-        if shut != self._shut:
-            self._shut, self._open = shut, opening
-            self._retexture()
-        elif opening != self._open and interior is not None:
+        if shut != self._shut:  # only the eyes' box of the texture changes
+            self._shut = shut
+            x0, y0, _, _ = self._lids.box
+            x, y = self._scene.picture_at
+            self._patch(x + x0, y + y0, self._lids.region(self._picture, shut))
+        if opening != self._open and interior is not None:
             self._open = opening
-            for renderer in (self._renderer, self._at_picture):
-                if renderer is not None:
-                    renderer.patch_texture(0, self._scene.mouth_row, interior.drawn(opening))
+            self._patch(0, self._scene.mouth_row, interior.drawn(opening))
         if self._renewal is not None and self._renewal[0] <= self._seq:
             if self._renewal[0] == self._seq:
                 self._renew(positions, still, *self._renewal[1:])
@@ -239,6 +239,11 @@ class PictureView(FaceView):
         self._renderer.set_texture(uv, texture)
         if self._at_picture is not None:
             self._at_picture.set_texture(uv, texture)
+
+    def _patch(self, x: int, y: int, image: np.ndarray) -> None:
+        for renderer in (self._renderer, self._at_picture):
+            if renderer is not None:
+                renderer.patch_texture(x, y, image)
 
     def _textured(self) -> tuple[np.ndarray, np.ndarray]:
         interior = self._scene.interior

@@ -48,13 +48,14 @@ def test_teeth_move_only_between_the_lips_and_go_as_they_close(person):
     assert np.ptp(upper_rows, axis=0).max() <= 1 and np.ptp(lower_rows, axis=0).max() <= 1
 
 
-def test_the_mouth_drawn_frame_by_frame_is_the_mouth_drawn_at_once(person):
-    """The texture's mouth is patched as the opening changes: a view that drew other frames first
+def test_a_face_drawn_frame_by_frame_is_the_face_drawn_at_once(person):
+    """The texture's mouth and eyes are patched as they change: a view that drew other frames first
     (the sender's, a receiver in a call) draws each frame as a view drawing only it."""
-    names = ("theta", "v3y")
+    names = ("theta", "v3y", "lid_l", "lid_r")
     header = stream_header(names, 25.0, person.content_id)
     size = person.picture.image.shape[1::-1]
-    frames = [np.array([t, -0.02 * t / 10]) for t in (0.0, 4.0, 10.0, 6.0, 2.0)]
+    frames = [np.array([t, -0.02 * t / 10, lid, 0.5 * lid]) for t, lid in
+              ((0.0, 0.0), (4.0, 0.3), (10.0, 0.9), (6.0, 1.0), (2.0, 0.0))]
     running = PictureView(header, person, size)
     for params in frames:
         np.testing.assert_array_equal(running.render(params), PictureView(header, person, size).render(params))
