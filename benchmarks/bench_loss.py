@@ -8,6 +8,13 @@ decodes what is left. Prints, per redundancy, the bits per frame (header exclude
 frames (decoded, not concealed) in % of all, mean over the clips and 5 seeds; depth 0 is the
 stream without copies.
 
+``bursts``: fd-send's stream (one packet carried again) under the loss patterns of a real
+link, in process (not paced over a socket): random loss, fixed bursts of 2, 3 and 8 datagrams,
+and Gilbert-Elliott loss (a good state that loses nothing and a bad one that loses everything,
+bursts of 3 on average), each also with 5 % of neighbouring datagrams swapped and 2 %
+duplicated. Prints the good frames in % and the longest freeze (frames in a row not good),
+mean and worst over the clips and seeds.
+
 ``header``: bits per frame that repeating the header before every Nth keyframe costs, for
 each layout's dump (``DUMP.npz``, ``DUMP.paper.npz``, ``DUMP.full.npz``).
 
@@ -55,17 +62,75 @@ def lose(count: int, rate: float, burst: int, rng: np.random.Generator) -> np.nd
     return lost
 
 
-def good_frames(stream: list[bytes], lost: np.ndarray, frames: int) -> tuple[int, int]:
-    """(good, delivered) frames of ``stream`` with the frames datagrams ``lost`` dropped (a lost
-    first keyframe starts the receiver at the next: the frames before are not delivered)."""
-    dec = DatagramDecoder()
-    got: list[Frame] = []
-    body = [i for i, d in enumerate(stream) if i and i < len(stream) - 2]  # not the header, not the end
+def lose_gilbert_elliott(count: int, rate: float, burst: float, rng: np.random.Generator) -> np.ndarray:
+    """(count,) bool: Gilbert-Elliott loss, a fraction ``rate`` of datagrams in bursts of ``burst`` on average."""
+    to_bad, to_good = rate / (burst * (1.0 - rate)), 1.0 / burst
+    lost, bad = np.zeros(count, bool), False
+    for i, u in enumerate(rng.random(count)):
+        bad = u >= to_good if bad else u < to_bad
+        lost[i] = bad
+    return lost
+
+
+def shuffled(stream: list[bytes], rng: np.random.Generator, swap: float, duplicate: float) -> list[bytes]:
+    """``stream`` with neighbours swapped (probability ``swap`` each) and datagrams sent twice (``duplicate``)."""
+    out = list(stream)
+    for i in range(len(out) - 1):
+        if rng.random() < swap:
+            out[i], out[i + 1] = out[i + 1], out[i]
+    return [d for d in out for _ in range(2 if rng.random() < duplicate else 1)]
+
+
+def frames_good(stream: list[bytes], lost: np.ndarray, frames: int, rng: np.random.Generator | None = None,
+                swap: float = 0.0, duplicate: float = 0.0) -> np.ndarray:
+    """(frames,) bool: which frames the receiver drew from data (not concealed, not missing) when
+    the body datagrams ``lost`` are dropped and the rest arrive ``shuffled``."""
+    body = [i for i in range(len(stream)) if i and i < len(stream) - 2]  # not the header, not the end
     dropped = {body[i] for i in np.flatnonzero(lost[:len(body)])}
-    for i, d in enumerate(stream):
-        if i not in dropped:
-            got += [e for e in dec.receive(d) if isinstance(e, Frame)]
-    return sum(not f.concealed for f in got), len(got)
+    kept = [d for i, d in enumerate(stream) if i not in dropped]
+    if rng is not None:
+        kept = kept[:1] + shuffled(kept[1:], rng, swap, duplicate)
+    dec, good = DatagramDecoder(), np.zeros(frames, bool)
+    for d in kept:
+        for e in dec.receive(d):
+            if isinstance(e, Frame) and e.seq < frames:
+                good[e.seq] = not e.concealed
+    return good
+
+
+def longest_freeze(good: np.ndarray) -> int:
+    runs, longest = 0, 0
+    for g in good:
+        runs = 0 if g else runs + 1
+        longest = max(longest, runs)
+    return longest
+
+
+def bench_bursts(dumps: list[Path], seeds: int) -> None:
+    patterns = [("random 5 %", 0.05, "fixed", 1), ("random 10 %", 0.10, "fixed", 1),
+                ("random 20 %", 0.20, "fixed", 1), ("bursts of 2, 5 %", 0.05, "fixed", 2),
+                ("bursts of 3, 5 %", 0.05, "fixed", 3),
+                ("bursts of 8, 5 %", 0.05, "fixed", 8), ("Gilbert-Elliott 5 %, bursts of 3", 0.05, "ge", 3),
+                ("Gilbert-Elliott 10 %, bursts of 3", 0.10, "ge", 3)]
+    print("| pattern | good frames % | + reordered, duplicated | longest freeze, mean (worst) "
+          "| + reordered, duplicated |")
+    print("|---|---|---|---|---|")
+    streams = [datagrams(path, 1) for path in dumps]
+    for label, rate, kind, burst in patterns:
+        good: dict[bool, list[float]] = {False: [], True: []}
+        freeze: dict[bool, list[int]] = {False: [], True: []}
+        for stream, _, n in streams:
+            for seed in range(seeds):
+                rng = np.random.default_rng(seed)
+                lost = lose(len(stream), rate, burst, rng) if kind == "fixed" else \
+                    lose_gilbert_elliott(len(stream), rate, burst, rng)
+                for mixed in (False, True):
+                    g = frames_good(stream, lost, n, np.random.default_rng(seed + 1000) if mixed else None,
+                                    0.05, 0.02)
+                    good[mixed].append(100 * g.mean())
+                    freeze[mixed].append(longest_freeze(g))
+        print(f"| {label} | {np.mean(good[False]):.1f} | {np.mean(good[True]):.1f} | {np.mean(freeze[False]):.1f} "
+              f"({max(freeze[False])}) | {np.mean(freeze[True]):.1f} ({max(freeze[True])}) |", flush=True)
 
 
 def bench_loss(dumps: list[Path], seeds: int) -> None:
@@ -80,8 +145,7 @@ def bench_loss(dumps: list[Path], seeds: int) -> None:
             for seed in range(seeds):
                 rng = np.random.default_rng(seed)
                 for c, (rate, burst) in enumerate([(r, 1) for r in LOSSES] + [(0.06, 3)]):
-                    good, _ = good_frames(stream, lose(len(stream), rate, burst, rng), n)
-                    cells[c].append(100 * good / n)
+                    cells[c].append(100 * frames_good(stream, lose(len(stream), rate, burst, rng), n).mean())
         print(f"| {copies} | {np.mean(bits):.1f} | " + " | ".join(f"{np.mean(v):.1f}" for v in cells.values()) + " |")
 
 
@@ -133,7 +197,7 @@ def bench_flood(rates: list[int], seconds: float) -> None:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("what", choices=("loss", "header", "flood"))
+    p.add_argument("what", choices=("loss", "bursts", "header", "flood"))
     p.add_argument("dumps", nargs="*", type=Path, help="fd-send --dump files (the default layout's)")
     p.add_argument("--seeds", type=int, default=5)
     p.add_argument("--rates", type=int, nargs="*", default=[0, 2000, 5000, 10000, 20000, 40000])
@@ -141,6 +205,8 @@ def main() -> None:
     args = p.parse_args()
     if args.what == "loss":
         bench_loss(args.dumps, args.seeds)
+    elif args.what == "bursts":
+        bench_bursts(args.dumps, args.seeds)
     elif args.what == "header":
         bench_header(args.dumps)
     else:
