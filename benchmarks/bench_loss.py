@@ -27,6 +27,7 @@ import json
 import subprocess
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -39,11 +40,14 @@ ROOT = Path(__file__).resolve().parents[1]
 LOSSES = (0.0, 0.01, 0.05, 0.10, 0.20)
 
 
-def datagrams(path: Path, copies: int, header_every: int = 0, eager: int = 0) -> tuple[list[bytes], int, int]:
+def datagrams(path: Path, copies: int, header_every: int = 0, eager: int = 0,
+              key_interval: int | None = None) -> tuple[list[bytes], int, int]:
     """(datagrams, header packet bytes, frames) of fd-send's stream of a dump, the header sent once
-    unless asked."""
+    unless asked; ``key_interval``: frames between keyframes instead of fd-send's second."""
     names, fps, params, found = read_dump(path)
     header = stream_header(names, fps, "00" * 32, basis=first_basis(names, fps, list(zip(params, found))))
+    if key_interval is not None:
+        header = replace(header, key_interval=key_interval)
     enc = PacketEncoder(header, 2)
     head = enc.header()
     pack = Datagrams(head[0], copies, header_every, eager)
@@ -106,16 +110,18 @@ def longest_freeze(good: np.ndarray) -> int:
     return longest
 
 
-def bench_bursts(dumps: list[Path], seeds: int) -> None:
+def bench_bursts(dumps: list[Path], seeds: int, key_interval: int | None = None) -> None:
     patterns = [("random 5 %", 0.05, "fixed", 1), ("random 10 %", 0.10, "fixed", 1),
                 ("random 20 %", 0.20, "fixed", 1), ("bursts of 2, 5 %", 0.05, "fixed", 2),
                 ("bursts of 3, 5 %", 0.05, "fixed", 3),
                 ("bursts of 8, 5 %", 0.05, "fixed", 8), ("Gilbert-Elliott 5 %, bursts of 3", 0.05, "ge", 3),
                 ("Gilbert-Elliott 10 %, bursts of 3", 0.10, "ge", 3)]
+    streams = [datagrams(path, 1, key_interval=key_interval) for path in dumps]
+    bits = np.mean([8 * (sum(map(len, stream)) - head) / n for stream, head, n in streams])
+    print(f"{bits:.1f} bits a frame, header excluded, a keyframe every {key_interval or 'second'}\n")
     print("| pattern | good frames % | + reordered, duplicated | longest freeze, mean (worst) "
           "| + reordered, duplicated |")
     print("|---|---|---|---|---|")
-    streams = [datagrams(path, 1) for path in dumps]
     for label, rate, kind, burst in patterns:
         good: dict[bool, list[float]] = {False: [], True: []}
         freeze: dict[bool, list[int]] = {False: [], True: []}
@@ -200,13 +206,14 @@ def main() -> None:
     p.add_argument("what", choices=("loss", "bursts", "header", "flood"))
     p.add_argument("dumps", nargs="*", type=Path, help="fd-send --dump files (the default layout's)")
     p.add_argument("--seeds", type=int, default=5)
+    p.add_argument("--key-interval", type=int, help="bursts: frames between keyframes (default: a second's)")
     p.add_argument("--rates", type=int, nargs="*", default=[0, 2000, 5000, 10000, 20000, 40000])
     p.add_argument("--seconds", type=float, default=6.0, help="flood: length of the call")
     args = p.parse_args()
     if args.what == "loss":
         bench_loss(args.dumps, args.seeds)
     elif args.what == "bursts":
-        bench_bursts(args.dumps, args.seeds)
+        bench_bursts(args.dumps, args.seeds, args.key_interval)
     elif args.what == "header":
         bench_header(args.dumps)
     else:

@@ -4,6 +4,7 @@ keyframes, over a deterministic in-memory link and over loopback UDP."""
 import socket
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ from facedeform.common.errors import InputError
 from facedeform.protocol.secure import SecureSealer
 from facedeform.protocol.secure_stream import SecureDatagramDecoder
 from facedeform.protocol.stream import DatagramDecoder, Datagrams, Frame, Header, PacketEncoder
+from facedeform.sender.session import DATAGRAM_KEYS
 from facedeform.sender.transport import open_sink
 from tests.support import KEY, N, finish, header, parse_y4m, smooth_tracks, start_listener
 
@@ -75,6 +77,38 @@ def test_one_lost_datagram_costs_no_frame_and_without_copies_only_a_concealed_se
                 for f in got[concealed[0]:b]:
                     t = (f.seq - a) / (b - a)
                     np.testing.assert_allclose(f.params, sent[a] + t * (sent[b] - sent[a]), atol=1e-9)
+
+
+def longest_freeze(frames: list[Frame], n: int) -> int:
+    good = np.zeros(n, bool)
+    for f in frames:
+        good[f.seq] = not f.concealed
+    runs = longest = 0
+    for g in good:
+        runs = 0 if g else runs + 1
+        longest = max(longest, runs)
+    return longest
+
+
+@pytest.mark.parametrize("at", [20, 33, 47, 61])
+def test_a_burst_of_three_freezes_the_face_at_most_twelve_frames_over_datagrams(at):
+    """One copy of each packet does not survive three datagrams lost in a row: the face is concealed
+    until the next keyframe. fd-send's keyframe a second froze it for up to a second and a half; over
+    datagrams it sends one every 0.4 s (sender.session.DATAGRAM_KEYS)."""
+    params = smooth_tracks()
+    keys = round(DATAGRAM_KEYS * 25)
+    froze = {}
+    for interval in (25, keys):
+        enc = PacketEncoder(replace(header(), key_interval=interval), 2)
+        head = enc.header()
+        pack = Datagrams(head[0], 1)
+        stream = pack.add(head)
+        for x in params:
+            stream += pack.add(enc.frame(x, True))
+        stream += pack.add(enc.end())
+        kept = stream[:at] + stream[at + 3:]
+        froze[interval] = longest_freeze(receive(DatagramDecoder(), kept), len(params))
+    assert froze[25] > 12 and 0 < froze[keys] <= 12  # a keyframe a second froze longer
 
 
 def test_copies_and_sealing_survive_loss_together():
