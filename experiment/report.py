@@ -44,7 +44,7 @@ def curves(rows: list[dict], size: int, metric: str) -> dict:
             points = []
             for setting in sorted({r["setting"] for r in rows if r["codec"] == codec}):
                 same = [r for r in rows if r["codec"] == codec and r["setting"] == setting and r["size"] == size
-                        and np.isfinite(r[metric])]
+                        and np.isfinite(r.get(metric, np.nan))]  # rows of an older run may lack a newer measure
                 if same:
                     points.append((np.mean([r[rate] for r in same]) / 1000, np.mean([r[metric] for r in same])))
             if points:

@@ -216,3 +216,13 @@ def test_a_failed_run_ends_the_local_pool_at_once():
     with pytest.raises(FdError, match="^run 0 failed$"):
         list(cli._map(_slow_or_failing, list(range(40)), argparse.Namespace(scheduler=None, jobs=2)))
     assert time.perf_counter() - started < 5  # not the 10 s that the other 39 runs take on 2 workers
+
+
+def test_rows_of_an_older_run_without_a_newer_measure_still_plot():
+    """A resumed run keeps the rows it finished, written perhaps before a measure was added."""
+    from facedeform.experiment.report import curves
+
+    old = {"codec": "x264", "setting": "crf51", "size": 256, "bitrate_bps": 9000.0, "psnr": 24.0}
+    new = {**old, "setting": "crf45", "bitrate_bps": 15000.0, "eye_corr": 0.5}
+    x, y = curves([old, new], 256, "eye_corr")["x264"]
+    assert list(x) == [15.0] and list(y) == [0.5]
