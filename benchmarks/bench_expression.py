@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 import facedeform
-from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, Deformer, extended_params
+from facedeform.codec.deform import GLOBAL_PARAMS, POSE_PARAMS, Deformer, extended_params
 from facedeform.codec.motion_basis import MAX_COMPONENTS
 from facedeform.experiment import metrics
 from facedeform.experiment.clips import prepare, track
@@ -59,26 +59,16 @@ def drawn_beside(clip, face, names: tuple[str, ...], dump: Path) -> tuple[list, 
     header = stream_header(names, clip.fps, face.model.content_id)
     size = clip.frames[0].shape[1::-1]
     oracle_view, frozen_view, uncoded_view = (PictureView(header, face.model, size) for _ in range(3))
-    still = [i for i, n in enumerate(names) if n in POSE_PARAMS + GLOBAL_PARAMS]
-    moving = [i for i in range(len(names)) if i not in still]
+    placing = np.array([n in POSE_PARAMS + GLOBAL_PARAMS for n in names])  # head pose and global motion
     deformer = Deformer(face.model, header.rule)
     oracle, frozen, uncoded, fit_gap = [], [], [], []
     for p, target, seen in zip(params, targets, found):
         oracle.append(oracle_view.render(p, shape=target if seen else None))
         uncoded.append(uncoded_view.render(p))
-        rest = p.copy()
-        rest[moving] = 0.0
-        frozen.append(frozen_view.render(rest))
-        expression = extended_params(names, p)
-        expression[[EXTENDED_PARAMS.index(n) for n in POSE_PARAMS + GLOBAL_PARAMS]] = 0.0
-        fit_gap.append(lip_gap(deformer.deform_extended(expression)))
+        frozen.append(frozen_view.render(np.where(placing, p, 0.0)))
+        fit_gap.append(lip_gap(deformer.deform_extended(extended_params(names, np.where(placing, 0.0, p)))))
     target_gap = np.where(found, lip_gap(targets), np.nan)
     return oracle, frozen, uncoded, np.where(found, fit_gap, np.nan), target_gap
-
-
-def spread(x: np.ndarray) -> float:
-    x = x[~np.isnan(x)]
-    return float(np.subtract(*np.percentile(x, metrics.SWING[::-1])))
 
 
 def run(clip, face, work: Path, options: dict) -> dict:
@@ -97,7 +87,7 @@ def run(clip, face, work: Path, options: dict) -> dict:
             row[f"opening_corr_{name}"] = metrics.opening_correlation(ref, dec)
             row[f"eye_corr_{name}"] = metrics.eye_correlation(ref, dec)
     row["gap"] = row["psnr_oracle"] - row["psnr_ours"]
-    row["fit_swing"] = spread(fit_gap) / spread(target_gap)
+    row["fit_swing"] = metrics.swing(fit_gap) / metrics.swing(target_gap)
     return row
 
 

@@ -114,21 +114,19 @@ class _Opening:
     bottom rows."""
 
     def __init__(self, mask: np.ndarray) -> None:
-        ys, xs = np.nonzero(mask)
+        ys, xs, bottom = _lowest_rows(mask)
         self._x0, self._x1, self._y0, self._y1 = xs.min(), xs.max() + 1, ys.min(), ys.max() + 1
         self._inside = mask[self._y0:self._y1, self._x0:self._x1] > 0
-        bottom = np.full(mask.shape[1], -1)
-        np.maximum.at(bottom, xs, ys)
         self._bottom = bottom[self._x0:self._x1].astype(np.float32)
+        self._rows, self._cols = np.mgrid[self._y0:self._y1, self._x0:self._x1].astype(np.float32)
 
     def slide(self, picture: np.ndarray, out: np.ndarray, closure: float) -> None:
         """Writes into ``out`` the opening as the mesh will squash it to (1 - closure) of its height:
         each column's lower (1 - closure) of the eye, stretched to the whole opening."""
         if closure <= 0:
             return
-        y, x = np.mgrid[self._y0:self._y1, self._x0:self._x1].astype(np.float32)
-        source_y = self._bottom - (self._bottom - y) * (1.0 - closure)
-        moved = cv2.remap(picture, x, source_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        source_y = self._bottom - (self._bottom - self._rows) * (1.0 - closure)
+        moved = cv2.remap(picture, self._cols, source_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         region = out[self._y0:self._y1, self._x0:self._x1]
         region[self._inside] = moved[self._inside]
 
@@ -138,14 +136,20 @@ def _lid_skin(picture: np.ndarray, masks: list[np.ndarray]) -> np.ndarray:
     smoothed along the eye: a shut lid looks like the skin under the eye, while the skin above it
     reaches the brows (inpainting from the whole rim smeared them down over the eye)."""
     out = picture.copy()
-    height, width = picture.shape[:2]
+    height = picture.shape[0]
     for mask in masks:
-        ys, xs = np.nonzero(mask)
-        lowest = np.full(width, -1)
-        np.maximum.at(lowest, xs, ys)
+        ys, xs, lowest = _lowest_rows(mask)
         out[ys, xs] = picture[np.minimum(lowest[xs] + BELOW, height - 1), xs]
         x0, x1, y0, y1 = xs.min(), xs.max() + 1, ys.min(), ys.max() + 1
         smooth = cv2.GaussianBlur(out[y0:y1, x0:x1], (0, 0), sigmaX=2.0, sigmaY=0.5)
         inside = mask[y0:y1, x0:x1] > 0
         out[y0:y1, x0:x1][inside] = smooth[inside]
     return out
+
+
+def _lowest_rows(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, columns) of ``mask``'s pixels and, per column of the mask, its lowest such row (-1: none)."""
+    ys, xs = np.nonzero(mask)
+    lowest = np.full(mask.shape[1], -1)
+    np.maximum.at(lowest, xs, ys)
+    return ys, xs, lowest

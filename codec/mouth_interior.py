@@ -35,8 +35,7 @@ class MouthInterior:
         top, bottom = (_curve(np.array([at[v] for v in loop]), xs) for loop in (upper, lower))
         self._top = np.clip(top, 0, height - 1).astype(np.float32)
         self._bottom = np.clip(np.maximum(bottom, top), 0, height - 1).astype(np.float32)
-        self._rows = np.mgrid[0:height, 0:width][0].astype(np.float32)
-        self._cols = np.mgrid[0:height, 0:width][1].astype(np.float32)
+        self._rows, self._cols = np.mgrid[0:height, 0:width].astype(np.float32)
         self._cache: tuple[float, np.ndarray] = (1.0, image)
 
     def ratio(self, upper_lip: np.ndarray, lower_lip: np.ndarray) -> float:

@@ -145,12 +145,12 @@ def _areas(pixels: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
 
 
-def _padding(pixels: np.ndarray, size: tuple[int, int], most: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _padding(pixels: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """Pixels to add left and top, right and bottom of a ``size`` picture so that ``pixels`` fall
-    inside it with 2 to spare (at most ``most`` a side)."""
+    inside it with 2 to spare."""
     lo = np.maximum(np.ceil(-pixels.min(axis=0)), 0).astype(int) + 2
     hi = np.maximum(np.ceil(pixels.max(axis=0) - size), 0).astype(int) + 2
-    return (lo, hi) if most is None else (np.minimum(lo, most), np.minimum(hi, most))
+    return lo, hi
 
 
 def outer_loop(faces: np.ndarray) -> np.ndarray:
@@ -228,8 +228,10 @@ class SceneMesh:
         self._open = None  # (open mouth image, its vertices' pixels) when the scene draws the person's own
         height, width = picture.image.shape[:2]
         mouth_image, mouth_points = picture.mouth, picture.mouth_points
-        lo, hi = _padding(pixels, (width, height))
+        self._pad = lo, hi = _padding(pixels, (width, height))  # the picture's border in the texture
         if mouth_image is not None and mouth_points is not None and max(*lo, *hi) <= max(width, height) // 2:
+            self.picture_at = (int(lo[0]), int(lo[1]))
+            self.mouth_row = height + int(lo[1] + hi[1]) + MOUTH_GAP
             self._mouth = mouth_vertices(face)
             copies = np.full(n, -1)
             copies[self._mouth] = len(pixels) + np.arange(len(self._mouth))
@@ -253,18 +255,17 @@ class SceneMesh:
         """(texture, (vertices, 2) uv with v up) that texture the scene by ``image``, a picture in the
         reference picture's place (the reference itself, or it renewed). With the person's open
         mouth (or ``mouth``, the same remapped: :attr:`interior`), it goes below the picture in one
-        texture, the picture's edges repeated as far as the rings reach (the clamp the picture
-        alone would have), at most half a side."""
+        texture (at :attr:`mouth_row`), the picture's edges repeated as far as the rings reach (the
+        clamp the picture alone would have; the picture's top left at :attr:`picture_at`)."""
         height, width = image.shape[:2]
         pixels = self.rest_pixels
         if self._open is None:
             return image, np.column_stack([pixels[:, 0] / width, 1.0 - pixels[:, 1] / height])
-        lo, hi = _padding(pixels, (width, height), max(width, height) // 2)
-        self.picture_at = (int(lo[0]), int(lo[1]))
+        lo, hi = self._pad
         padded = cv2.copyMakeBorder(image, lo[1], hi[1], lo[0], hi[0], cv2.BORDER_REPLICATE)
         mouth_image, mouth_points = self._open
         mouth_image = mouth_image if mouth is None else mouth
-        below = self.mouth_row = padded.shape[0] + MOUTH_GAP
+        below = self.mouth_row
         atlas = np.zeros((below + mouth_image.shape[0], max(padded.shape[1], mouth_image.shape[1]), 3), np.uint8)
         atlas[:padded.shape[0], :padded.shape[1]], atlas[below:, :mouth_image.shape[1]] = padded, mouth_image
         placed = np.concatenate([np.clip(pixels + lo, 0, [padded.shape[1], padded.shape[0]]),

@@ -97,8 +97,14 @@ def opening_swing(reference: np.ndarray, decoded: np.ndarray) -> float:
     both = ~(np.isnan(a) | np.isnan(b))
     if both.sum() < 3:
         return float("nan")
-    spread = np.subtract(*np.percentile(a[both], SWING[::-1]))
-    return float(np.subtract(*np.percentile(b[both], SWING[::-1])) / spread) if spread > 0 else float("nan")
+    spread = swing(a[both])
+    return swing(b[both]) / spread if spread > 0 else float("nan")
+
+
+def swing(series: np.ndarray) -> float:
+    """The 5th to 95th percentile range (SWING) of a series' known (not NaN) values."""
+    values = np.asarray(series, dtype=np.float64)
+    return float(np.subtract(*np.percentile(values[~np.isnan(values)], SWING[::-1])))
 
 
 def blinks(landmarks: np.ndarray) -> bool:

@@ -109,15 +109,14 @@ class FrameAnalysis:
 class FaceAnalyser:
     """Runs a tracker and the model fit over frames; yields one :class:`FrameAnalysis` per frame.
 
-    layout: "paper" (the paper's 13 and head rotation), "full" (plus brows,
-    lids, cheeks and head translation), "mouth" (the paper's 13, the richer
-    mouth and jaw of codec/mouth.py, the lids, head rotation), "personal" (the
-    paper's 13 when the face's own motion basis refines them, the basis, the
-    lids, head rotation) or "auto" (``resolve_layout``); the lids of "mouth"
-    and "personal" take what the rest leaves over at them (``ModelFit.lids``); calibration_frames: how many frames with
-    a face to choose the rest face from; neutral: a frame index to use instead;
-    rule: the deformation rule (codec.regions.RULES) the receiver will use, as the
-    stream header names it.
+    layout: "paper" (the paper's 13 and head rotation), "full" (plus brows, lids, cheeks and head
+    translation), "mouth" (the paper's 13, the richer mouth and jaw of codec/mouth.py, the lids,
+    head rotation), "personal" (the paper's 13 when the face's own motion basis refines them, the
+    basis, the lids, head rotation) or "auto" (``resolve_layout``); the lids of "mouth" and
+    "personal" take what the rest leaves over at them (``ModelFit.lids``); calibration_frames: how
+    many frames with a face to choose the rest face from; neutral: a frame index to use instead;
+    rule: the deformation rule (codec.regions.RULES) the receiver will use, as the stream header
+    names it.
     """
 
     def __init__(self, tracker: Tracker, face: BaseFace, fps: float, layout: str = "auto",

@@ -12,14 +12,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facedeform.codec.eyelids import CORNERS, LIDS
 from facedeform.codec.face_model import BaseFace
+from facedeform.codec.mouth_interior import LOWER_LIP, UPPER_LIP
 from facedeform.common.errors import InputError
 
 MOUTH_CORNERS = (61, 291)
-SUBNASALE, UPPER_LIP, LOWER_LIP = 2, 13, 14
+SUBNASALE = 2
 NOSE_TIP = 1
-EYES = ((33, 133), (362, 263))  # corners of the face-right and face-left eye
-LIDS = ((159, 145), (386, 374))  # upper and lower lid middles of the same eyes
 RATIO_LIMITS = (0.5, 2.0)  # a ratio outside this is a tracking failure, not a face
 
 
@@ -44,7 +44,7 @@ def fapu_ratios(neutral: np.ndarray, face: BaseFace) -> np.ndarray:
     def units(x):
         def d(a, b):
             return float(np.linalg.norm(x[a] - x[b]))
-        eye_mid = [x[list(e)].mean(axis=0) for e in EYES]
+        eye_mid = [x[list(e)].mean(axis=0) for e in CORNERS]
         mw = d(*MOUTH_CORNERS)
         mns = float(np.linalg.norm(x[SUBNASALE] - x[[UPPER_LIP, LOWER_LIP]].mean(axis=0)))
         es = float(np.linalg.norm(eye_mid[0] - eye_mid[1]))
@@ -80,7 +80,7 @@ def choose_rest(candidates: list[tuple[int, np.ndarray, np.ndarray]], neutral: i
 def inter_ocular(landmarks: np.ndarray) -> np.ndarray:
     """Distance between the eye centres of (..., 468, d) landmarks -> (...): the face's yardstick."""
     lm = np.asarray(landmarks, dtype=np.float64)
-    return np.linalg.norm(lm[..., EYES[0], :].mean(axis=-2) - lm[..., EYES[1], :].mean(axis=-2), axis=-1)
+    return np.linalg.norm(lm[..., CORNERS[0], :].mean(axis=-2) - lm[..., CORNERS[1], :].mean(axis=-2), axis=-1)
 
 
 def lip_gap(landmarks: np.ndarray) -> np.ndarray:
@@ -97,4 +97,4 @@ def eye_opening(landmarks: np.ndarray) -> np.ndarray:
     def ratio(lids, corners):
         return (np.linalg.norm(lm[..., lids[0], :] - lm[..., lids[1], :], axis=-1)
                 / np.linalg.norm(lm[..., corners[0], :] - lm[..., corners[1], :], axis=-1))
-    return 0.5 * (ratio(LIDS[0], EYES[0]) + ratio(LIDS[1], EYES[1]))
+    return 0.5 * (ratio(LIDS[0], CORNERS[0]) + ratio(LIDS[1], CORNERS[1]))

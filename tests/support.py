@@ -183,12 +183,10 @@ def as_version(data: bytes, version: int) -> bytes:
     patterns = np.frombuffer(data, "<i1", 3 * c * k, pos + 2 * k) / PATTERN_SCALE
     motion = data[pos:pos + 2 * k] + patterns.astype("<f2" if version == 4 else "<f4").tobytes()
     images = data[pos + 2 * k + 3 * c * k:]
-    if version == 4:
-        text = json.dumps(info).encode()
-        return data[:6] + bytes([version, 0]) + len(text).to_bytes(4, "little") + text + mesh + motion + images
-    if info["meta"] == "base":
-        info["meta"] = BASE.meta
-    info.pop("rings", None)
+    if version < 4:
+        if info["meta"] == "base":
+            info["meta"] = BASE.meta
+        info.pop("rings", None)
     if version < 3:
         for field in ("picture", "projection", "mouth", "mouth_points"):
             info.pop(field, None)
