@@ -4,9 +4,9 @@ For each clip (its 256x256 face crop, made as fd-experiment makes it, and its sp
 model from the crop's first second, motion basis from its first half, as fd-experiment
 enrols), fd-send's session at each --bitrate, then the library's decoder: kbit/s of the stream
 after its header, the largest 2-second window's rate over the rate asked for (issue: within 10 %),
-renewals per second, PSNR (mean of R, G, B; mean and 5th percentile over frames) against the
+picture packets per second, PSNR (mean of R, G, B; mean and 5th percentile over frames) against the
 crop, the sender's frames per second (tracking, fit, coding and its closed loop) and the
-receiver's (decoding and drawing, renewals included), one thread each.
+receiver's (decoding and drawing, the layer included), one thread each.
 
     .venv/bin/python benchmarks/bench_picture_layer.py /path/to/dev/*.mp4 --rates 1.5 4 10 30 --out results/
 """
@@ -54,7 +54,7 @@ def run(clip, face, kbps: float | None) -> dict:
             "kbit_per_s": float(bits.sum() * clip.fps / n / 1000),
             "window_ratio": None if kbps is None or len(bits) < window else
             float(np.convolve(bits, np.ones(window), "valid").max() / (1000 * kbps * WINDOW)),
-            "renewals_per_s": (stats["picture_renewals"] or 0) * clip.fps / n,
+            "packets_per_s": (stats["picture_packets"] or 0) * clip.fps / n,
             "psnr": float(psnr.mean()), "psnr_p5": float(np.percentile(psnr, 5)),
             "sender_fps": n / send_s, "receiver_fps": n / receive_s}
 
@@ -76,15 +76,15 @@ def main() -> None:
                 rows.append(row := run(clip, face, kbps))
                 print(json.dumps(row), flush=True)
     (args.out / "picture_layer.json").write_text(json.dumps(rows, indent=1) + "\n")
-    print("| setting | kbit/s | largest 2 s window / rate | renewals/s | PSNR dB (5th pct.) | sender fps "
+    print("| setting | kbit/s | largest 2 s window / rate | picture packets/s | PSNR dB (5th pct.) | sender fps "
           "| receiver fps |")
     print("|---|---|---|---|---|---|---|")
     for setting in dict.fromkeys(r["setting"] for r in rows):
         same = [r for r in rows if r["setting"] == setting]
         ratio = [r["window_ratio"] for r in same if r["window_ratio"] is not None]
-        mean = {k: np.mean([r[k] for r in same]) for k in ("kbit_per_s", "renewals_per_s", "psnr", "psnr_p5",
+        mean = {k: np.mean([r[k] for r in same]) for k in ("kbit_per_s", "packets_per_s", "psnr", "psnr_p5",
                                                            "sender_fps", "receiver_fps")}
-        print(f"| {setting} | {mean['kbit_per_s']:.2f} | {max(ratio):.3f} | {mean['renewals_per_s']:.1f} | " if ratio
+        print(f"| {setting} | {mean['kbit_per_s']:.2f} | {max(ratio):.3f} | {mean['packets_per_s']:.1f} | " if ratio
               else f"| {setting} | {mean['kbit_per_s']:.2f} | - | - | ", end="")
         print(f"{mean['psnr']:.2f} ({mean['psnr_p5']:.2f}) | {mean['sender_fps']:.0f} | {mean['receiver_fps']:.0f} |")
 

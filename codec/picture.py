@@ -35,8 +35,6 @@ RING_DEPTH = 0.5
 #: fall-off starts at the face (neck and shoulders do not turn with it).
 HAIR_START = 1.3
 MOUTH_GAP = 4  # rows between the pictures and the open mouth below them in the texture
-#: A renewed picture textures a triangle that shows there with at least this share of its area at rest.
-SEEN_AREA = 0.5
 _FLIP = np.array([1.0, -1.0, 1.0])  # picture axes <-> (pixel x, pixel y down, depth)
 
 
@@ -139,12 +137,6 @@ def face_texture(face: BaseFace) -> tuple[np.ndarray | None, np.ndarray]:
     return picture.image, np.column_stack([placed[:, 0] / width, 1.0 + placed[:, 1] / height])
 
 
-def _areas(pixels: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """(m,) signed areas of the triangles at (n, 2) pixels."""
-    a, b, c = (pixels[triangles[:, i]] for i in range(3))
-    return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
-
-
 def _padding(pixels: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """Pixels to add left and top, right and bottom of a ``size`` picture so that ``pixels`` fall
     inside it with 2 to spare."""
@@ -245,15 +237,10 @@ class SceneMesh:
         self.texture, self.uv = self.textured(picture.image)
         self.triangles = np.concatenate([face_triangles, strips]).astype(np.int32)
         self.mouth_faces = np.concatenate([mouth, np.zeros(len(strips), bool)])
-        self._rest_area = _areas(np.concatenate([pixels, pixels[self._mouth]]), self.triangles)
-        # the triangles the picture textures (not the open mouth's, nor a drawn cavity), and at rest
-        self._from_picture = ~(self.triangles >= len(pixels)).any(axis=1) & ~self.mouth_faces
-        self._rest_positions = np.concatenate([rest, ring_rest, rest[self._mouth]])
-        self._covered: np.ndarray | None = None
 
     def textured(self, image: np.ndarray, mouth: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(texture, (vertices, 2) uv with v up) that texture the scene by ``image``, a picture in the
-        reference picture's place (the reference itself, or it renewed). With the person's open
+        reference picture's place (the reference itself, or its eyes' lids drawn). With the person's open
         mouth (or ``mouth``, the same remapped: :attr:`interior`), it goes below the picture in one
         texture (at :attr:`mouth_row`), the picture's edges repeated as far as the rings reach (the
         clamp the picture alone would have; the picture's top left at :attr:`picture_at`)."""
@@ -276,53 +263,6 @@ class SceneMesh:
     def pixels(self, positions: np.ndarray) -> np.ndarray:
         """(n, 2) pixels (x right, y down) of the face and ring vertices among :meth:`positions`."""
         return (positions[:len(positions) - len(self._mouth)] * _FLIP)[:, :2]
-
-    def carry_back(self, image: np.ndarray, positions: np.ndarray, seen: np.ndarray, elsewhere: np.ndarray,
-                   camera) -> np.ndarray:
-        """``image`` ((H, W, 3) uint8, a frame's picture-sized data, its scene at ``positions``) carried
-        back to the reference picture's place: through each triangle of the scene that the frame
-        showed (``seen``) onto where it lies at rest, values as they are (linear); where no scene
-        triangle lies at rest, ``elsewhere`` (the same carried by the background's motion); 128
-        on the triangles the frame did not show."""
-        from facedeform.codec.render import UNLIT, Renderer
-
-        height, width = image.shape[:2]
-        covered = self._covers((width, height), camera)
-        base = np.where(covered[..., None], np.uint8(128), elsewhere)
-        drawn = np.flatnonzero(seen & self._from_picture)
-        if not len(drawn):
-            return base
-        pixels = self.pixels(positions)
-        uv = np.column_stack([pixels[:, 0] / width, 1.0 - pixels[:, 1] / height])
-        carry = Renderer(self.triangles[drawn], size=(width, height), material=UNLIT,
-                         lights=(), background=base, uv=np.concatenate([uv, uv[self._mouth]]), texture=image,
-                         linear=True)
-        return carry.render(self._rest_positions, camera)[0]
-
-    def _covers(self, size: tuple[int, int], camera) -> np.ndarray:
-        """(H, W) bool: the pixels of the reference picture that a triangle the picture textures covers at rest."""
-        if self._covered is None or self._covered.shape != size[::-1]:
-            from facedeform.codec.render import Renderer
-
-            depth = Renderer(self.triangles[self._from_picture], size=size, lights=()).render(
-                self._rest_positions, camera)[1]
-            self._covered = np.isfinite(depth)
-        return self._covered
-
-    def seen(self, positions: np.ndarray, depth: np.ndarray, nearest: np.ndarray) -> np.ndarray:
-        """(triangles,) bool: which scene triangles a frame with these ``positions`` (picture axes)
-        shows well enough to texture others by it: facing the viewer as at rest, at least
-        SEEN_AREA of their area at rest, and nearest at their centre in ``nearest`` ((H, W) depth of
-        that frame's picture along the view, ``depth`` (vertices,) that of each vertex)."""
-        pixels = (positions * _FLIP)[:, :2]
-        area = _areas(pixels, self.triangles)
-        centre = pixels[self.triangles].mean(axis=1)
-        height, width = nearest.shape
-        col = np.clip(np.floor(centre[:, 0]).astype(int), 0, width - 1)
-        row = np.clip(np.floor(centre[:, 1]).astype(int), 0, height - 1)
-        tolerance = 0.02 * self.reference.scale  # a fiftieth of the face's height
-        front = depth[self.triangles].mean(axis=1) <= nearest[row, col] + tolerance
-        return front & (area * np.sign(self._rest_area) >= SEEN_AREA * np.abs(self._rest_area))
 
     def default_weights(self) -> np.ndarray:
         """(rings x boundary,) how far each ring vertex follows the head without measured weights:

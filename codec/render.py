@@ -38,7 +38,6 @@ def linear_to_srgb(values) -> np.ndarray:
 _DECODE = srgb_to_linear(np.arange(256) / 255.0)
 _NO_IRISES = np.zeros((0, 3))
 _ENCODE = np.round(linear_to_srgb(np.arange(65536) / 65535.0) * 255.0).astype(np.uint8)
-_AS_IS = (np.arange(256) / 255.0, np.round(np.arange(65536) / 65535.0 * 255.0).astype(np.uint8))  # linear=True
 
 
 @dataclass(frozen=True)
@@ -102,18 +101,13 @@ class Renderer:
     with a band of teeth under its upper edge; eye_faces: (m,) bool marking
     the eye fills, drawn as sclera with a dark iris and pupil at each eye's
     centre (one eye per connected piece); supersample: 1, or 2 for 2x2
-    anti-aliasing; linear: the texture's and background's values are light as
-    they are, not sRGB (to move data such as a residual image from one place
-    to another, interpolated linearly). Buffers are reused between frames: one
-    instance is not thread-safe.
+    anti-aliasing. Buffers are reused between frames: one instance is not
+    thread-safe.
     """
 
     def __init__(self, faces, size=(512, 512), material: Material = Material(),
                  lights=(KEY_LIGHT, FILL_LIGHT), background=(0, 0, 0), uv=None,
-                 texture=None, mouth_faces=None, supersample: int = 1, eye_faces=None, linear: bool = False):
-        self._decode: np.ndarray
-        self._encode: np.ndarray
-        self._decode, self._encode = _AS_IS if linear else (_DECODE, _ENCODE)
+                 texture=None, mouth_faces=None, supersample: int = 1, eye_faces=None):
         faces = np.asarray(faces)
         if faces.ndim != 2 or faces.shape[1] != 3 or faces.shape[0] == 0 \
                 or not np.issubdtype(faces.dtype, np.integer) or faces.min() < 0:
@@ -182,7 +176,7 @@ class Renderer:
         h, w = image.shape[:2]
         if not (0 <= x and 0 <= y and y + h <= self._texture.shape[0] and x + w <= self._texture.shape[1]):
             raise ValueError(f"a {w}x{h} patch at ({x}, {y}) is outside the texture")
-        self._texture[y:y + h, x:x + w] = self._decode[image]
+        self._texture[y:y + h, x:x + w] = _DECODE[image]
 
     def set_background(self, background) -> None:
         """Draw over ``background`` from the next frame on: as the constructor's (a moving camera's picture)."""
@@ -215,7 +209,7 @@ class Renderer:
         if texture.ndim != 3 or texture.shape[2] != 3 or texture.dtype != np.uint8 \
                 or texture.shape[0] == 0 or texture.shape[1] == 0:
             raise ValueError(f"texture must be (h, w, 3) uint8, got {texture.dtype} {texture.shape}")
-        return np.ascontiguousarray(uv), self._decode[texture].astype(np.float32)
+        return np.ascontiguousarray(uv), _DECODE[texture].astype(np.float32)
 
     def render(self, vertices, camera: Camera, irises=None) -> tuple[np.ndarray, np.ndarray]:
         """Draw the mesh posed at vertices: (n, 3) world positions.
@@ -257,11 +251,11 @@ class Renderer:
         box = draw(screen, persp, v, self._uv, self.faces, self._kind, camera.near, camera.far,
                    self._drawn, self._nearness, count, shading, view, self._texture,
                    teeth_columns(screen, self._mouth_vertices, sw),
-                   eye_discs(v, self.faces, *self._eye_pieces, irises), self._encode, image, depth,
+                   eye_discs(v, self.faces, *self._eye_pieces, irises), _ENCODE, image, depth,
                    self._linear)
         self._drawn = box
         if ss > 1 and box[0] <= box[2]:
-            resolve(self._nearness, self._linear, box, persp, self._background, self._decode, self._encode,
+            resolve(self._nearness, self._linear, box, persp, self._background, _DECODE, _ENCODE,
                     image, depth)
         return image, depth
 

@@ -47,7 +47,7 @@ from facedeform.protocol.framing import (
 from facedeform.protocol.header import ID_BYTES, Header, parse_header
 from facedeform.protocol.priors import models_for
 
-MAX_PICTURE = 1 << 18  # bytes of one renewal of the picture: far more than any rate asks for
+MAX_PICTURE = 1 << 18  # bytes of one picture layer payload: far more than any rate asks for
 MAX_SEEK = 1 << 16  # bytes searched for a header before the input is declared foreign
 
 
@@ -79,7 +79,7 @@ class PacketDecoder:
         self._out = 0  # next output frame number
         self._last: tuple[int, np.ndarray, bool] | None = None  # coded index, params, face of the last decoded
         self._model = bytearray()
-        self._picture: tuple[int, int, bytearray, bool] | None = None  # (frame, total, bytes so far, whole)
+        self._picture: tuple[int, int, bytearray] | None = None  # (frame, total, bytes so far)
         self._previous = b""
         #: Bytes of input (junk and damage included) before the packet being read: its callers set it.
         self.position = 0
@@ -313,11 +313,10 @@ class PacketDecoder:
         return [Model(bytes(self._model))] if len(self._model) == self.header.model_size else []
 
     def _on_picture(self, body: bytes) -> list | None:
-        """A piece of a renewal of the picture: pieces come in order, one renewal at a time (a new
-        frame's first piece drops an unfinished one); the whole renewal is one event."""
+        """A piece of a picture layer's payload: pieces come in order, one payload at a time (a new
+        frame's first piece drops an unfinished one); the whole payload is one event."""
         cut = "picture packet ends inside a number"
         frame, pos = need_varint(body, 0, MAX_FRAME, cut)
-        whole, pos = need_varint(body, pos, 1, cut)
         total, pos = need_varint(body, pos, MAX_PICTURE, cut)
         offset, pos = need_varint(body, pos, MAX_PICTURE, cut)
         piece = body[pos:]
@@ -328,14 +327,14 @@ class PacketDecoder:
             self.stats.duplicates += 1
             return []
         if offset == 0:
-            held = self._picture = (frame, total, bytearray(), bool(whole))
-        if held is None or (held[0], held[1], len(held[2]), held[3]) != (frame, total, offset, bool(whole)):
-            return []  # a piece of a renewal whose start was lost: it cannot be used
+            held = self._picture = (frame, total, bytearray())
+        if held is None or (held[0], held[1], len(held[2])) != (frame, total, offset):
+            return []  # a piece of a payload whose start was lost: it cannot be used
         held[2].extend(piece)
         if len(held[2]) < total:
             return []
         self._picture = None
-        return [Picture(frame * self.header.divisor, bytes(held[2]), held[3])]
+        return [Picture(frame * self.header.divisor, bytes(held[2]))]
 
     def _on_end(self, body: bytes, size: int) -> list | None:
         divisor = self.header.divisor

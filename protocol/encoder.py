@@ -37,7 +37,7 @@ from facedeform.protocol.priors import models_for
 from facedeform.protocol.quantise import DEAD_ZONE, hold_or_round
 
 MODEL_CHUNK = 1024
-PICTURE_PIECE = 1024  # bytes of a renewal of the picture per packet (and datagram)
+PICTURE_PIECE = 1024  # bytes of a picture layer's payload per packet (and datagram)
 COPIES = 1  # earlier frames packets a datagram carries again (Datagrams): one lost datagram costs nothing
 HEADER_EAGER, HEADER_EVERY = 10, 30  # keyframes: the header goes again before the first 10, then every 30th
 _MAX_INDEX = 1 << 30  # quantised values beyond this are a caller's bug (NaN, wrong units)
@@ -78,11 +78,10 @@ class PacketEncoder:
                   for i in range(0, len(self._model), MODEL_CHUNK)]
         return [build(HEADER, encode_header(self._h))] + chunks
 
-    def picture(self, frame: int, data: bytes, whole: bool = False) -> list[bytes]:
-        """The picture layer's packets of a renewal of the picture for frame ``frame`` (a frame
-        number, of the frames given to :meth:`frame`; ``whole``: the picture itself, else a
-        residual): to go before the packet that carries it."""
-        head = varint(frame // self._h.divisor) + varint(int(whole)) + varint(len(data))
+    def picture(self, frame: int, data: bytes) -> list[bytes]:
+        """The picture layer's packets of its payload for frame ``frame`` (a frame number, of the
+        frames given to :meth:`frame`): to go before the packet that carries it."""
+        head = varint(frame // self._h.divisor) + varint(len(data))
         return [build(PICTURE, head + varint(i) + data[i:i + PICTURE_PIECE])
                 for i in range(0, len(data), PICTURE_PIECE)]
 

@@ -29,12 +29,10 @@ class Model:
 
 @dataclass(frozen=True)
 class Picture:
-    """A renewal of the picture for frame ``seq`` (the picture layer: its own format, codec/renewal.py):
-    the picture itself when ``whole``, else a residual over what the receiver draws."""
+    """The picture layer's payload for frame ``seq`` (its own format: codec/frame_video.py)."""
 
     seq: int
     data: bytes
-    whole: bool = False
 
 
 @dataclass(frozen=True)

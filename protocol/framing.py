@@ -17,13 +17,13 @@ A code never starts with :data:`SYNC`, which is all a decoder needs to tell a
 delta from the rest; a decoder reads a delta only where the packet before it
 ended. A datagram holds one packet's bytes exactly as on a byte stream.
 
-The picture layer's packets (a renewal of the picture, in pieces) are framed
+The picture layer's packets (a payload of codec/frame_video.py, in pieces) are framed
 like model chunks::
 
     0xFD | type byte | length varint | frame varint | total varint | offset varint | piece | check
 
-The check is as wide as what it guards is worth: CRC-32 for the header,
-model chunks and picture pieces, CRC-16 for keyframes and the end mark, CRC-8 for delta packets. A
+The check is as wide as what it guards is worth: CRC-32 for the header and
+model chunks, CRC-16 for keyframes, picture pieces and the end mark, CRC-8 for delta packets. A
 delta's check also covers the number of its first frame, which is not sent: a
 delta is accepted only by a decoder that holds exactly the frames it was
 predicted from, so a lost or repeated packet is caught without spending bits on
@@ -44,7 +44,7 @@ MAX_COUNT = 32  # frames per packet (5 bits)
 MAX_REDUNDANCY = 3  # earlier frames packets a datagram may carry again (protocol.encoder.Datagrams)
 MAX_DATAGRAM = MAX_BODY + 64  # bytes: no datagram of ours, sealed or not, is longer
 MAX_FRAME = (1 << 32) - 1  # coded frame numbers (a delta's check covers 4 bytes of it): 5 years at 25 fps
-_CHECK = {HEADER: 4, MODEL: 4, KEY: 2, DELTA: 1, END: 2, PICTURE: 4}
+_CHECK = {HEADER: 4, MODEL: 4, KEY: 2, DELTA: 1, END: 2, PICTURE: 2}
 _FRAMED = (HEADER, MODEL, END, PICTURE)  # the packets with a length field
 
 

@@ -11,6 +11,7 @@ from facedeform.codec.camera import Camera
 from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, Deformer
 from facedeform.codec.eyelids import Eyelids
 from facedeform.codec.face_model import BaseFace
+from facedeform.codec.frame_video import VideoLayer
 from facedeform.codec.mouth_interior import LOWER_LIP, UPPER_LIP
 from facedeform.codec.picture import SceneMesh, face_texture, frame_placement, global_matrix
 from facedeform.codec.render import UNLIT, Renderer
@@ -122,15 +123,10 @@ class PictureView(FaceView):
     picture and its projection scaled to it), the picture moved by the frame's global motion (the
     camera's). Unlit: the picture's own light.
 
-    The picture layer renews it (:meth:`renew`): a residual over what this view draws of frame k
-    (or now and then frame k's whole picture, which brings a receiver that missed renewals back
-    in step), coded by the sender, which runs this same view on what it sends
-    (sender/picture_layer.py), so both ends draw the same pixels. The residual is carried back
-    into the reference picture's own place, through the scene mesh for every triangle that frame
-    k showed well (``SceneMesh.seen``) and through the global motion for the background, and
-    added there: the picture drawn from then on is the reference so corrected, never resampled,
-    so that what it never saw (a turned head's far side, a shirt, the background a camera
-    uncovers) is shown without the picture going soft.
+    The picture layer (:attr:`layer`, codec/frame_video.py) draws the real frame as a small video
+    where the sender found it nearer the frame than this picture (a turned head's far side, a
+    shirt, the background a camera uncovers); the sender runs this same view and layer on what it
+    sends (sender/picture_layer.py), so both ends draw the same pixels.
     """
 
     def _setup(self, face: BaseFace, size: tuple[int, int], textured: bool) -> None:
@@ -153,18 +149,22 @@ class PictureView(FaceView):
                                   uv=self._scene.uv, texture=self._scene.texture, mouth_faces=self._scene.mouth_faces)
         self._camera = _picture_camera(size)
         self._seq = -1
-        self._renewal: tuple[int, np.ndarray, bool] | None = None  # (frame, image, whole) to apply when drawn
-        self._at_picture: Renderer | None = None  # the scene at the picture's size, when the output's differs
+        self.layer = VideoLayer(self._picture_size)
         self._lids = Eyelids(face, self._scene.rest_pixels, self._picture_size)
-        self._eye_fills = face.eye_faces
         self._shut: tuple[float, ...] = (0.0, 0.0)  # how far each eye is closed (codec/eyelids.py)
         self._open = 1.0  # how open the mouth is, against the person's open mouth (codec/mouth_interior.py)
 
     def render(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None) -> np.ndarray:
-        """The picture of frame ``seq`` (None: the one after the last), renewed first if a renewal
-        of that frame is waiting; ``shape``: a (468, 3) pose-free face (base-face units) to draw
+        """The picture of frame ``seq`` (None: the one after the last), the picture layer's as it
+        holds for that frame; ``shape``: a (468, 3) pose-free face (base-face units) to draw
         instead of the one the parameters' expression deforms (the expression benchmark's oracle,
         the tracked face itself), placed by the parameters' head pose and global motion."""
+        model = self.model_picture(params, seq, shape)
+        return self.layer.draw(self._seq, model)
+
+    def model_picture(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None
+                      ) -> np.ndarray:
+        """What :meth:`render` draws before the picture layer: the model's picture alone."""
         self._seq = self._seq + 1 if seq is None else seq
         positions, still, deformed = self._placed(self._full(params), shape)
         self._move_background(still)
@@ -179,20 +179,7 @@ class PictureView(FaceView):
         if opening != self._open and interior is not None:
             self._open = opening
             self._patch(0, self._scene.mouth_row, interior.drawn(opening))
-        if self._renewal is not None and self._renewal[0] <= self._seq:
-            if self._renewal[0] == self._seq:
-                self._renew(positions, still, *self._renewal[1:])
-            self._renewal = None
         return self._renderer.render(positions * self._scale, self._camera)[0]
-
-    def renew(self, frame: int, image: np.ndarray, whole: bool = False) -> None:
-        """Renew the picture when frame ``frame`` is drawn by ``image`` ((h, w, 3) uint8 RGB, any
-        size up to the picture's, scaled to it): with ``whole`` the frame's picture itself, else
-        half its difference from what this view draws of it, offset by 128 (:func:`residual_of`).
-        Ignored if a later frame was drawn already (the sender renews the frame it just drew,
-        which it then draws again)."""
-        if frame >= self._seq:
-            self._renewal = (frame, image, whole)
 
     def _placed(self, full: np.ndarray, shape: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
@@ -207,70 +194,16 @@ class PictureView(FaceView):
         still = global_matrix(full[_GLOBAL], self._scene.reference, self._picture_size)
         return self._scene.positions(deformed, frame, still), still, deformed
 
-    def _renew(self, positions: np.ndarray, still: np.ndarray | None, coded: np.ndarray, whole: bool) -> None:
-        """Adds the renewal of the frame at ``positions`` (global motion ``still``) to the picture."""
-        import cv2
-
-        size = self._picture_size
-        camera = _picture_camera(size)
-        drawn, nearest = (self._renderer if self.size == size else self._picture_renderer()).render(positions, camera)
-        if coded.shape[1::-1] != size:
-            coded = cv2.resize(coded, size, interpolation=cv2.INTER_LINEAR)
-        residual = residual_of(coded, drawn) if whole else coded
-        if still is not None:  # where the background lay in the picture
-            residual_back = cv2.warpAffine(residual, still, size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                           borderMode=cv2.BORDER_CONSTANT, borderValue=(128, 128, 128))
-        else:
-            residual_back = residual
-        seen = self._scene.seen(positions, camera.project(positions, size)[:, 2], nearest)
-        if any(self._shut):  # the picture keeps its open eyes: a closing lid's skin is drawn over them
-            seen[:len(self._eye_fills)] &= ~self._eye_fills
-        carried = self._scene.carry_back(residual, positions, seen, residual_back, camera)
-        self._picture = np.clip(self._picture + 2 * (carried.astype(np.int16) - 128), 0, 255).astype(np.uint8)
-        self._retexture()
-        w, h = self.size
-        self._still = self._picture if (w, h) == size else cv2.resize(self._picture, (w, h))
-        self._moved = _UNSET
-        self._move_background(still)
-
-    def _retexture(self) -> None:
-        """The scene textured by the picture as it is now, its eyes as shut as the lids are."""
-        texture, uv = self._textured()
-        self._renderer.set_texture(uv, texture)
-        if self._at_picture is not None:
-            self._at_picture.set_texture(uv, texture)
-
     def _patch(self, x: int, y: int, image: np.ndarray) -> None:
-        for renderer in (self._renderer, self._at_picture):
-            if renderer is not None:
-                renderer.patch_texture(x, y, image)
-
-    def _textured(self) -> tuple[np.ndarray, np.ndarray]:
-        interior = self._scene.interior
-        return self._scene.textured(self._lids.apply(self._picture, self._shut),
-                                    None if interior is None else interior.drawn(self._open))
-
-    def _picture_renderer(self) -> Renderer:
-        """The scene drawn at the reference picture's size (a renewal is measured there, whatever
-        the output's), over the picture moved as the output's background is."""
-        import cv2
-
-        if self._at_picture is None:
-            texture, uv = self._textured()
-            self._at_picture = Renderer(self._scene.triangles, size=self._picture_size, material=UNLIT, lights=(),
-                                        uv=uv, texture=texture, mouth_faces=self._scene.mouth_faces)
-        moved = None if self._moved is _UNSET else self._moved
-        self._at_picture.set_background(self._picture if moved is None else cv2.warpAffine(
-            self._picture, moved, self._picture_size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
-        return self._at_picture
+        self._renderer.patch_texture(x, y, image)
 
     def _move_background(self, still: np.ndarray | None) -> None:
         """The picture moved by ``still`` (a pixel map, None: the picture as it is, bit-exact) as the
         renderer's background, warped once per change of the global motion."""
         import cv2
 
-        if self._moved is not _UNSET and ((still is None and self._moved is None) or (
-                still is not None and self._moved is not None and np.array_equal(still, self._moved))):
+        if (still is None and self._moved is None) or (
+                still is not None and self._moved is not None and np.array_equal(still, self._moved)):
             return
         self._moved = still
         if still is None:
@@ -280,15 +213,6 @@ class PictureView(FaceView):
         scaled = np.diag([w / self._picture_size[0], h / self._picture_size[1]]) @ still
         self._renderer.set_background(cv2.warpAffine(self._picture, scaled, (w, h), flags=cv2.INTER_LINEAR,
                                                      borderMode=cv2.BORDER_REPLICATE))
-
-
-_UNSET = np.zeros((0, 0))  # the background is not yet that of the picture drawn
-
-
-def residual_of(frame: np.ndarray, drawn: np.ndarray) -> np.ndarray:
-    """What :meth:`PictureView.renew` takes to turn ``drawn`` into ``frame`` ((H, W, 3) uint8
-    each): half their difference, offset by 128."""
-    return np.clip((frame.astype(np.int16) - drawn) // 2 + 128, 0, 255).astype(np.uint8)
 
 
 def _picture_camera(size: tuple[int, int]) -> Camera:

@@ -54,7 +54,7 @@ class ReceiveSession:
         self.source: StreamSource | None = None
         self.face_kind: str | None = None
         self.face_id: str | None = None
-        self.frames = self.concealed = self.interpolated = self.written = self.renewals = 0
+        self.frames = self.concealed = self.interpolated = self.written = self.layer_packets = 0
         #: bytes the source had read when the first frame arrived: the header, an in-band model
         self.bytes_before_frames = 0
         #: seconds from the arrival of a frame's packet to its output, for the last LATENCY_WINDOW frames
@@ -108,28 +108,26 @@ class ReceiveSession:
         elif isinstance(event, Frame):
             self._frame(event, arrived)
         elif isinstance(event, Picture):
-            self._renew(event)
+            self._picture_layer(event)
         elif isinstance(event, Damage):
             self._warn(f"damaged stream at frame {event.seq} ({event.reason}): "
                        "holding the last frame until the next keyframe")
         elif isinstance(event, End) and event.frames != self.frames:
             raise BitstreamError(f"stream says {event.frames} frames, {self.frames} arrived")
 
-    def _renew(self, event: Picture) -> None:
-        """A renewal of the picture (the picture layer): handed to a view that draws the whole
-        picture; one that cannot be read is reported and left out, the face drawn as before."""
-        from facedeform.codec.renewal import decode_renewal
+    def _picture_layer(self, event: Picture) -> None:
+        """The picture layer's payload: handed to a view that draws the whole picture; one that
+        cannot be used is reported, the model's picture drawn alone until the layer's next key."""
         from facedeform.receiver.face_view import PictureView
 
         view = self._view
         if not isinstance(view, PictureView):
             return
-        residual = decode_renewal(event.data, view.picture_size)
-        if residual is None:
-            self._warn(f"damaged picture renewal at frame {event.seq}: left out")
-            return
-        self.renewals += 1
-        view.renew(event.seq, residual, event.whole)
+        if view.layer.take(event.seq, event.data):
+            self.layer_packets += 1
+        else:
+            self._warn(f"picture layer lost or damaged at frame {event.seq}: "
+                       "the model's picture alone until its next key")
 
     def _start(self, header: Header) -> None:
         self._header = header
@@ -208,7 +206,7 @@ class ReceiveSession:
         ms = np.array(self.latency) * 1000 if self.latency else np.zeros(1)
         return {
             "frames": self.frames, "written": self.written, "concealed": self.concealed,
-            "interpolated": self.interpolated, "picture_renewals": self.renewals,
+            "interpolated": self.interpolated, "picture_packets": self.layer_packets,
             "damage_reports": s.damaged if s else 0, "packets": s.packets if s else 0,
             "duplicates": s.duplicates if s else 0, "skipped_bytes": s.skipped_bytes if s else 0,
             "ended": bool(self.source and self.source.decoder.ended),

@@ -1,113 +1,156 @@
-"""The picture layer at the sender: a closed loop that renews the receiver's picture under a rate.
+"""The picture layer at the sender: the real frame as a small AV1 video beside the model's picture,
+under the rate the parameters leave (codec/frame_video.py).
 
 The sender runs the receiver's own view (receiver.face_view.PictureView) on the parameters the
-receiver will decode (``protocol.encoder.PacketEncoder.reconstruction``), so it knows, bit for
-bit, what the receiver draws. At regular steps paid for by the rate left after the parameters,
-it codes half the difference between the real frame and that picture (codec/renewal.py), hands
-the coded residual to its own view exactly as the receiver will, and sends it in the picture
-layer's packets, ahead of the frame's own. Renewing often with small images beat renewing
-rarely with large ones on the moving dev clips (docs/picture_layer.md): the picture goes stale
-in the half second after a renewal, however sharp it was.
+receiver will decode (``protocol.encoder.PacketEncoder.reconstruction``) and the receiver's own
+layer (codec.frame_video.VideoLayer) on every payload it sends, so it knows, bit for bit, what
+the receiver draws. For each frame it may send, it codes the frame scaled down, decodes it as
+the receiver will, and chooses the blocks where the model's picture is nearer the frame than the
+video's.
 """
 
 from collections import deque
+from math import ceil
 
 import cv2
 import numpy as np
 
 from facedeform.codec.face_model import BaseFace
-from facedeform.codec.renewal import decode_renewal, encode_renewal
+from facedeform.codec.frame_video import VideoEncoder, VideoLayer, choose_blocks, video_size
 from facedeform.protocol.stream import Header, PacketEncoder, stream_size
-from facedeform.receiver.face_view import PictureView, residual_of
+from facedeform.sender.config import PARAMETER_FLOOR, parameter_rate
 
-#: A renewal gets RENEWAL_BYTES of what the layer saves, renewals coming as often as that allows,
-#: but at least every PERIOD seconds (with fewer bytes) and at most every frame (with more).
-RENEWAL_BYTES, PERIOD = 250, 0.5
 WINDOW = 2.0  # seconds over which the whole stream must keep within MARGIN of its rate
 MARGIN = 1.05
-PACKING = 16  # bytes a renewal's packet adds to its image (sync, type, length, numbers, check)
-MIN_RENEWAL = 60  # bytes: the smallest WebP worth sending
-SHARP = 45.0  # dB: a picture this close to the frame is not renewed
-#: A renewal is sent only if it brings the frame's picture at least this many dB closer to the
-#: frame: below it, a renewal's coding noise costs about what it corrects, and adds up (a still
-#: speaker's picture went from VMAF 30 to 10 at 4 kbit/s when every renewal was sent).
-GAIN = 1.0
-#: Over datagrams, seconds after which a renewal is the whole picture again, not a residual: a
-#: receiver that joined late or lost a renewal draws what the sender does from then on. Byte
-#: streams (files, pipes, TCP) lose nothing and start at the beginning, so they never pay for it
-#: (a whole picture shows less than a residual for its bytes: 0.7-1.1 dB on pcavs_Pose_Source).
-WHOLE_EVERY = 1.0
+PACKING = 9  # bytes a layer packet adds to its payload (sync, type, length, frame, size, offset, check)
+#: Bytes of the smallest video packet to plan for: AV1's smallest frame at these sizes (about 20
+#: bytes), its packing and blocks, and room for what moves. Below a rate that pays for one every
+#: frame, frames are sent every second, third... frame: SVT-AV1's rate control, told the frames
+#: it really gets, then keeps to the rate (skipping frames it was told of made it spend the
+#: skipped frames' bits on the next, which the rate then skipped in turn).
+SMALLEST = 40
+#: SVT-AV1's rate control in its low-delay mode misses at these sizes (by up to 30 % over on
+#: sadtalker_WDA_KatieHill at 30 kbit/s, 20 % under on lipnet): it is asked for the video's
+#: share as planned, and a video frame is skipped while the video has spent more than its share
+#: of what the parameters really leave (skips spread evenly, where a full 2-second window once
+#: held a stale frame for 16 frames).
+BURST = 0.5  # seconds of its share the video may save up
+PARAMETER_MEMORY = 25  # frames over which the parameters' bits are averaged
+BLOCKS_SHARE = 0.1  # of the layer's rate, for payloads of blocks only between video frames
+#: A block goes back to the model between video frames only if the model's picture is this
+#: many times nearer the frame there than the held video frame's.
+BLOCKS_ONLY_GAIN = 2.0
+#: The video's larger side, as a share of the picture's, by the layer's bit/s per 256x256 pixels
+#: (docs/picture_layer.md).
+SIDES = ((12_000, 0.25), (24_000, 0.5), (float("inf"), 1.0))
+#: Over datagrams, seconds between keys: a receiver that lost a packet or joined late draws the
+#: layer again from the next one. Byte streams (files, pipes, TCP) lose nothing and start at the
+#: beginning, so they send one key only.
+KEY_EVERY = 1.0
+#: The layer's least bit/s per 256x256 pixels: below it, its few frames cost the parameters more
+#: than they show (liveportrait_d11 at 1.5 kbit/s: 27.6 dB with a layer of 0.4 kbit/s, 28.2
+#: with the parameters alone).
+LEAST = 1_500
+
+
+def layer_rate(bitrate: float) -> float:
+    """bit/s the layer plans on at ``bitrate`` for the whole stream (the parameters take at most
+    their floor's worth at the start; what they leave unused goes to the layer as the call goes)."""
+    return bitrate - min(parameter_rate(bitrate), PARAMETER_FLOOR)
+
+
+def layer_pays(bitrate: float, picture_size: tuple[int, int]) -> bool:
+    """Whether a layer at ``bitrate`` for a picture of ``picture_size`` (w, h) is worth sending."""
+    return layer_rate(bitrate) * 256 ** 2 / (picture_size[0] * picture_size[1]) >= LEAST
 
 
 class PictureLayer:
-    """Renews the receiver's picture of ``face`` (which has a reference picture) within ``bitrate``
-    bit/s for the whole stream after its header, of which the parameters take what they take.
+    """The layer of ``face`` (which has a reference picture) within ``bitrate`` bit/s for the whole
+    stream after its header, of which the parameters take what they take.
 
-    :meth:`step` takes each frame after the encoder coded it and returns the picture layer's
-    packets to send before that frame's packets; ``sealed``: packets are sealed (each costs a
-    sync byte more on a byte stream); ``datagrams``: they go over a lossy link (WHOLE_EVERY).
+    :meth:`step` takes each frame after the encoder coded it and returns the layer's packets to
+    send before that frame's packets; ``sealed``: packets are sealed (each costs a sync byte
+    more on a byte stream); ``datagrams``: they go over a lossy link (KEY_EVERY).
     :attr:`picture` is what the receiver draws of the frame.
     """
 
     def __init__(self, face: BaseFace, header: Header, bitrate: float, sealed: bool = False,
                  datagrams: bool = False) -> None:
+        from facedeform.receiver.face_view import PictureView
+
         if face.picture is None:
             raise ValueError("the picture layer needs a face with a reference picture")
         height, width = face.picture.image.shape[:2]
         self.size = (width, height)
         self._view = PictureView(header, face, self.size)
+        self._layer = VideoLayer(self.size)
         self._frame_bits = bitrate / header.fps
         self._sealed = sealed
+        layer = layer_rate(bitrate)
+        share = next(s for most, s in SIDES if layer * 256 ** 2 / (width * height) < most)
+        self._video_size = video_size(self.size, max(width, height) * share)
+        self._every = max(1, ceil(header.fps * 8 * SMALLEST / ((1 - BLOCKS_SHARE) * layer)))
+        sent = header.fps / self._every  # video packets a second
+        video = (1 - BLOCKS_SHARE) * layer
+        self._encoder = VideoEncoder(self._video_size, video - 8 * PACKING * sent, sent)
+        self._fps = header.fps
+        self._parameter_bits = parameter_rate(bitrate) / header.fps  # the parameters' bits a frame, a running mean
+        self._credit = 0.0  # bits the video may still spend, against its share so far
         window = max(1, round(WINDOW * header.fps))
         self._recent: deque[int] = deque(maxlen=window - 1)  # bits of the last frames sent
         self._window_bits = MARGIN * self._frame_bits * window
-        self._parameter_bits = 0.0  # the parameters' bits per frame, a running mean
-        self._saved = 0.0  # bits the layer may spend now
-        self._period = PERIOD * header.fps  # frames
-        self._whole_every = WHOLE_EVERY * header.fps if datagrams else None
-        self._last_whole = 0  # the frame of the last whole renewal (none before the call starts)
+        self._blocks_bits = BLOCKS_SHARE * layer / header.fps  # a frame's share for blocks only
+        self._saved = 0.0  # bits saved for blocks only
+        self._size = 8.0 * SMALLEST  # bits of a video packet, a running mean
+        self._key_every = KEY_EVERY * header.fps if datagrams else None
+        self._last_key: int | None = None
         self.picture: np.ndarray | None = None
-        self.renewals = self.bits = 0
+        self.packets = self.bits = 0
 
     def step(self, seq: int, frame_bgr: np.ndarray, params: np.ndarray, encoder: PacketEncoder,
              frame_packets: list[bytes]) -> list[bytes]:
-        """The picture layer's packets for frame ``seq`` (BGR, any size: scaled to the picture's),
-        whose decoded parameters are ``params`` and packets ``frame_packets``."""
+        """The layer's packets for frame ``seq`` (BGR, any size: scaled to the picture's), whose
+        decoded parameters are ``params`` and packets ``frame_packets``."""
         spent = 8 * stream_size(frame_packets, self._sealed)
-        count = len(self._recent) + 1
-        self._parameter_bits += (spent - self._parameter_bits) / min(count, 25)
-        layer = max(0.0, self._frame_bits - self._parameter_bits)
-        share = min(max(8 * RENEWAL_BYTES, layer), layer * self._period)  # bits a renewal waits for
-        self._saved = min(self._saved + layer, 2 * share)
-        drawn = self._view.render(params, seq)
+        self._saved = min(self._saved + self._blocks_bits, 8.0 * SMALLEST)
+        model = self._view.model_picture(params, seq)
         packets: list[bytes] = []
-        budget = min(self._saved, self._window_bits - sum(self._recent) - spent - self._parameter_bits)
-        if budget >= 8 * (MIN_RENEWAL + PACKING) and self._saved >= share:
-            rgb = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)
-            if rgb.shape[1::-1] != self.size:
-                rgb = cv2.resize(rgb, self.size, interpolation=cv2.INTER_AREA)
-            before = _psnr(drawn, rgb)
-            if before < SHARP:
-                whole = self._whole_every is not None and seq - self._last_whole >= self._whole_every
-                data = encode_renewal(rgb if whole else residual_of(rgb, drawn), int(budget / 8) - PACKING)
-                coded = None if data is None else decode_renewal(data, self.size)  # as the receiver will
-                if coded is not None and not whole:
-                    after = np.clip(drawn + 2 * (coded.astype(np.int16) - 128), 0, 255)
-                    coded = coded if _psnr(after, rgb) >= before + GAIN else None
-                if data is not None and coded is not None:
-                    packets = encoder.picture(seq, data, whole)
-                    self._last_whole = seq if whole else self._last_whole
-                    self._view.renew(seq, coded, whole)
-                    drawn = self._view.render(params, seq)
-                    self.renewals += 1
+        room = self._window_bits - sum(self._recent) - spent
+        key = self._last_key is None or (  # within KEY_EVERY, on a frame the video is sent
+            self._key_every is not None and seq - self._last_key > self._key_every - self._every)
+        self._parameter_bits += (spent - self._parameter_bits) / PARAMETER_MEMORY
+        share = (1 - BLOCKS_SHARE) * max(0.0, self._frame_bits - self._parameter_bits)
+        self._credit = min(self._credit + share, BURST * share * self._fps)
+        if seq % self._every == 0 and (key or (self._credit >= 0 and room >= self._size)):
+            packets = self._send(seq, self._rgb(frame_bgr), model, key, encoder)
+        elif self._layer.frame is not None and min(self._saved, room) >= 8 * (PACKING + 4):
+            rgb = self._rgb(frame_bgr)
+            data = self._layer.make(seq, None, False, lambda held, before: choose_blocks(
+                model, held, rgb, before, BLOCKS_ONLY_GAIN))
+            packets = [] if data is None else encoder.picture(seq, data)
+            self._saved -= 8 * stream_size(packets, self._sealed)
         bits = 8 * stream_size(packets, self._sealed)
-        self._saved -= bits
+        self.packets += bool(packets)
         self.bits += bits
         self._recent.append(spent + bits)
-        self.picture = drawn
+        self.picture = self._layer.draw(seq, model)
         return packets
 
+    def close(self) -> None:
+        """Ends the video's encoder (after the last frame)."""
+        self._encoder.close()
 
-def _psnr(a: np.ndarray, b: np.ndarray) -> float:
-    error = float(np.mean((a.astype(np.float32) - b) ** 2))
-    return 10 * np.log10(255 ** 2 / max(error, 1e-10))
+    def _rgb(self, frame_bgr: np.ndarray) -> np.ndarray:
+        rgb = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)
+        return rgb if rgb.shape[1::-1] == self.size else cv2.resize(rgb, self.size, interpolation=cv2.INTER_AREA)
+
+    def _send(self, seq: int, rgb: np.ndarray, model: np.ndarray, key: bool, encoder: PacketEncoder) -> list[bytes]:
+        video = self._encoder.encode(cv2.resize(rgb, self._video_size, interpolation=cv2.INTER_AREA), key)
+        data = self._layer.make(seq, video, key, lambda decoded, before: choose_blocks(model, decoded, rgb, before))
+        packets = encoder.picture(seq, data)
+        bits = 8 * stream_size(packets, self._sealed)
+        if self._last_key is not None:  # the first key is the call's start, not its rate
+            self._size += (bits - self._size) / 4
+            self._credit -= bits
+        self._last_key = seq if key else self._last_key
+        return packets

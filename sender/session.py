@@ -31,7 +31,7 @@ from facedeform.protocol.stream import (
 )
 from facedeform.sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
 from facedeform.sender.config import SendConfig, parameter_rate
-from facedeform.sender.picture_layer import PictureLayer
+from facedeform.sender.picture_layer import PictureLayer, layer_pays
 from facedeform.sender.sources import open_source
 
 #: Seconds between keyframes over datagrams: a burst that defeats the one copy of each packet
@@ -157,9 +157,11 @@ class SendSession:
         """Packets are sealed (opaque): on a byte stream each needs its sync byte."""
         return self.sealer is not None
 
-    def _picture_layer(self) -> bool:
-        """Whether this call renews the receiver's picture (given a bitrate to do it with)."""
-        return self.config.picture_layer and self._face.picture is not None and self.config.divisor == 1
+    def _picture_layer(self, bitrate: float) -> bool:
+        """Whether this call at ``bitrate`` bit/s sends a picture layer."""
+        picture = self._face.picture
+        return self.config.picture_layer and picture is not None and self.config.divisor == 1 and \
+            layer_pays(bitrate, picture.image.shape[1::-1])
 
     def _header(self, quality: int) -> Header:
         return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model),
@@ -184,12 +186,12 @@ class SendSession:
                 self._basis = first_basis(self.analyser.names, fps, sample)
             quality = self.header.quality
             if first and bitrate is not None:
-                aim = parameter_rate(bitrate) if self._picture_layer() else bitrate
+                aim = parameter_rate(bitrate) if self._picture_layer(bitrate) else bitrate
                 quality = quality_for_bitrate(self._header, sample, aim, self.config.frames_per_packet,
                                               self.config.dead_zone, 0 if self.sealer is None else self.sealer.overhead,
                                               COPIES if self.config.datagrams else None)
             self._configure(quality)
-            if bitrate is not None and self._picture_layer():
+            if bitrate is not None and self._picture_layer(bitrate):
                 self.picture = PictureLayer(self._face, self.header, bitrate, self.sealed, self.config.datagrams)
             results = chain(first, results)
         for seq, result in enumerate(results):
@@ -218,6 +220,8 @@ class SendSession:
         if self._ended or not self.frame_count:
             return []
         self._ended = True
+        if self.picture is not None:
+            self.picture.close()
         packets = self._seal(self.encoder.end())
         self.stream_bytes += stream_size(packets, self.sealed)
         return packets
@@ -245,7 +249,7 @@ class SendSession:
                 "basis": self.header.basis is not None, "send_every": self.header.divisor,
                 "rest_frame": None if rest is None else rest.index,
                 "tag_bits": None if self.sealer is None else 8 * self.sealer.tag_bytes,
-                "picture_renewals": None if self.picture is None else self.picture.renewals,
+                "picture_packets": None if self.picture is None else self.picture.packets,
                 "picture_bits_per_frame": None if self.picture is None else round(self.picture.bits / max(n, 1), 1),
                 "frames_per_second": round(n / max(time.perf_counter() - self._started, 1e-9), 1)}
 

@@ -1,0 +1,264 @@
+"""The picture layer: the real frame, scaled down, as a video coded by SVT-AV1 and decoded by dav1d
+(both through PyAV), drawn with the model's picture block by block.
+
+Why a video codec of the frame itself, not a residual over the model's picture: on the moving
+dev clips' 256x256 crops, an earlier layer that coded what the model missed as WebP residuals
+(every still image on its own) gave pcavs_Pose_Source 23.4 dB at 4 kbit/s and 25.1 at 10; AV1 of
+the model's residual as a video did worse than AV1 of the frame (the residual's edges move where
+the model is off, which costs more than the frame), and AV1 of the frame at 64x64 gave 27 dB at
+8 kbit/s: its motion search follows a turning head and a leaning body that the model cannot.
+The model keeps what a picture that small cannot show: where the sender finds the model's
+picture nearer the frame (a still face's detail, most of a still clip), that block is the model's;
+elsewhere the video's, sharpened by the model's detail where the two agree (:func:`blend`).
+No library takes a rendered frame as its prediction; this choice per block is the one the
+model makes through. The numbers are in docs/picture_layer.md.
+
+A layer packet's payload (the picture packet of protocol/framing.py)::
+
+    flags (1 byte: bit 0 key, bit 1 blocks only, bits 2-7 a counter mod 64)
+    | the model's blocks (arithmetic code) | AV1 temporal unit without its temporal delimiter
+
+A payload of blocks only (no video: the last frame held) lets the sender hand a block back to
+the model between video frames, when the held frame no longer matches what moved.
+
+The blocks are coded as changes from the last packet's (from none at a key, where a receiver can
+start). Both ends run the same :class:`VideoLayer` on the same payloads, so they draw the same
+pixels; a receiver that missed a packet (the counter jumps) draws the model's picture alone until
+the next key.
+"""
+
+import os
+from collections import deque
+from collections.abc import Callable
+from fractions import Fraction
+from typing import cast
+
+import cv2
+import numpy as np
+
+from facedeform.protocol.arith import AdaptiveBit, Decoder, Encoder, Incomplete
+
+BLOCK = 32  # pixels of the picture per model-or-video choice (16 cost four times the bits for 0.2 dB)
+#: SVT-AV1's speed preset: slower ones (8, 6) changed PSNR by -0.2 to +0.5 dB on two moving clips
+#: at 4 and 10 kbit/s, and the sender runs at 50 frames/s with 10.
+PRESET = "10"
+_TEMPORAL_DELIMITER = b"\x12\x00"  # every temporal unit's first OBU: dropped on the wire
+_CHANGE = (20, 1)  # starting counts of a block's change: most blocks keep their choice
+KEY, BLOCKS_ONLY, COUNTER = 1, 2, 64
+SMALLEST_SIDE = 64  # pixels
+HELD = 64  # payloads held for frames not yet drawn: more than a receiver's buffer holds
+
+
+def video_size(picture_size: tuple[int, int], side: float) -> tuple[int, int]:
+    """The video's (w, h) for a picture of ``picture_size`` whose larger side becomes ``side``
+    pixels: even, as 4:2:0 needs, at least SMALLEST_SIDE (SVT-AV1's least), at most the picture's."""
+    w, h = picture_size
+    scale = min(1.0, max(side / max(w, h), SMALLEST_SIDE / min(w, h)))
+    return max(SMALLEST_SIDE, 2 * round(w * scale / 2)), max(SMALLEST_SIDE, 2 * round(h * scale / 2))
+
+
+class VideoEncoder:
+    """SVT-AV1 in its low-delay mode: each frame in gives its packet at once (no lookahead), at
+    ``bitrate`` bit/s over frames ``fps`` a second (the rate the encoder's own control aims at)."""
+
+    def __init__(self, size: tuple[int, int], bitrate: float, fps: float) -> None:
+        import av
+
+        os.environ.setdefault("SVT_LOG", "1")  # errors only: SVT-AV1 prints its settings otherwise
+        codec = av.CodecContext.create("libsvtav1", "w")
+        codec.width, codec.height = size
+        codec.pix_fmt = "yuv420p"
+        rate = Fraction(fps).limit_denominator(1001)
+        codec.time_base, codec.framerate = 1 / rate, rate
+        codec.bit_rate = max(1000, int(bitrate))
+        codec.options = {"preset": PRESET, "svtav1-params": "pred-struct=1:keyint=0:scd=0:lookahead=0:rc=2"}
+        codec.open()
+        self._codec, self._count, self.size = codec, 0, size
+
+    def encode(self, rgb: np.ndarray, key: bool = False) -> bytes:
+        """The temporal unit of ``rgb`` ((h, w, 3) uint8 at the video's size), a key if asked."""
+        import av
+
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb24")
+        frame.pts = self._count
+        if key:
+            frame.pict_type = av.video.frame.PictureType.I
+        self._count += 1
+        data = b"".join(bytes(p) for p in self._codec.encode(frame))
+        return data[len(_TEMPORAL_DELIMITER):] if data.startswith(_TEMPORAL_DELIMITER) else data
+
+
+    def close(self) -> None:
+        """Ends the encoder: its last packets, if any, are not needed (each frame's came at once)."""
+        if self._codec.is_open:
+            self._codec.encode(None)
+
+
+class VideoDecoder:
+    """dav1d, one frame in, one out, refusing a frame of more pixels than ``largest`` (w, h) before
+    it is allocated, and one wider or taller after."""
+
+    def __init__(self, largest: tuple[int, int]) -> None:
+        import av
+
+        self._codec = cast("av.VideoCodecContext", av.CodecContext.create("libdav1d", "r"))
+        self._codec.options = {"max_frame_delay": "1", "max_pixels": str(largest[0] * largest[1])}
+        self.largest = largest
+
+    def decode(self, data: bytes) -> np.ndarray | None:
+        """The (h, w, 3) uint8 RGB frame of a temporal unit of :meth:`VideoEncoder.encode`; None
+        if it does not decode to one frame within ``largest``."""
+        import av
+
+        try:
+            frames = self._codec.decode(av.Packet(_TEMPORAL_DELIMITER + data))
+        except (av.error.FFmpegError, ValueError):
+            return None
+        if len(frames) != 1 or frames[0].width > self.largest[0] or frames[0].height > self.largest[1]:
+            return None
+        return frames[0].to_ndarray(format="rgb24")
+
+
+def blocks_of(picture_size: tuple[int, int]) -> tuple[int, int]:
+    """(rows, columns) of BLOCK-pixel blocks over a picture of ``picture_size`` (w, h)."""
+    w, h = picture_size
+    return -(-h // BLOCK), -(-w // BLOCK)
+
+
+def encode_blocks(before: np.ndarray, after: np.ndarray) -> bytes:
+    """The (rows, columns) bool choice ``after`` as changes from ``before``."""
+    coder, model = Encoder(), AdaptiveBit(*_CHANGE)
+    for changed in (before != after).ravel():
+        coder.bit(int(changed), model)
+    return coder.end()
+
+
+def decode_blocks(before: np.ndarray, data: bytes) -> tuple[np.ndarray, int] | None:
+    """(the choice, bytes it took) from the start of ``data``; None if it ends too soon."""
+    decoder, model = Decoder(data), AdaptiveBit(*_CHANGE)
+    try:
+        changed = np.array([decoder.bit(model) for _ in range(before.size)], dtype=bool)
+        return before ^ changed.reshape(before.shape), len(decoder.end())
+    except Incomplete:
+        return None
+
+
+def blend(model: np.ndarray, video: np.ndarray, chosen: np.ndarray, picture_size: tuple[int, int]) -> np.ndarray:
+    """The picture drawn: ``model`` ((H, W, 3) uint8, any size) in the blocks ``chosen`` (True, of a
+    picture of ``picture_size``), elsewhere the video frame ``video`` (any size, scaled up) with the
+    model's detail added where its coarse picture agrees with the video's; the two meet softly
+    over half a block."""
+    h, w = model.shape[:2]
+    pw, ph = picture_size
+    mask = np.kron(chosen, np.ones((BLOCK, BLOCK))).astype(np.float32)[:ph, :pw]
+    soft = cv2.GaussianBlur(mask, (0, 0), BLOCK / 4)
+    if (pw, ph) != (w, h):
+        soft = cv2.resize(soft, (w, h), interpolation=cv2.INTER_LINEAR)
+    soft = soft[..., None]
+    return np.clip(soft * model + (1 - soft) * _sharpened(model, video) + 0.5, 0, 255).astype(np.uint8)
+
+
+def _sharpened(model: np.ndarray, video: np.ndarray) -> np.ndarray:
+    """The video scaled up to the model's picture, float32, with the model's detail (what its
+    picture at the video's size loses) added where the two agree."""
+    h, w = model.shape[:2]
+    small = video.shape[1::-1]
+    up = cv2.resize(video, (w, h), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+    coarse = cv2.resize(cv2.resize(model, small, interpolation=cv2.INTER_AREA), (w, h),
+                        interpolation=cv2.INTER_LINEAR).astype(np.float32)
+    apart = cv2.GaussianBlur(np.abs(up - coarse).mean(axis=2), (0, 0), w / small[0])
+    agree = np.clip(1.5 - apart / 8.0, 0.0, 1.0)[..., None]
+    return up + agree * (model - coarse)
+
+
+def choose_blocks(model: np.ndarray, video: np.ndarray, frame: np.ndarray, before: np.ndarray,
+                  hysteresis: float = 1.5) -> np.ndarray:
+    """The sender's choice: the blocks where the model's picture is nearer ``frame`` than the
+    video's, by ``hysteresis`` times to change a block's last choice ``before`` (a choice that
+    flickers costs bits and shows)."""
+    sharpened = _sharpened(model, video)
+    rows, columns = before.shape
+    h, w = model.shape[:2]
+
+    def per_block(picture: np.ndarray) -> np.ndarray:
+        error = np.zeros((rows * BLOCK, columns * BLOCK), np.float32)
+        error[:h, :w] = ((picture.astype(np.float32) - frame) ** 2).sum(axis=2)
+        return error.reshape(rows, BLOCK, columns, BLOCK).sum(axis=(1, 3))
+
+    by_model, by_video = per_block(model), per_block(sharpened)
+    return np.where(before, by_model < hysteresis * by_video, hysteresis * by_model < by_video)
+
+
+class VideoLayer:
+    """What both ends hold of the layer: the video's decoder, its last frame and the model's
+    blocks. The receiver reads payloads with :meth:`take`, the sender makes them with
+    :meth:`make`; both draw with :meth:`draw`. A payload comes before its frame is drawn and
+    holds from that frame on; frames before it, drawn later (a receiver's buffer), are drawn as
+    before it."""
+
+    def __init__(self, picture_size: tuple[int, int]) -> None:
+        self.picture_size = picture_size
+        self._decoder: VideoDecoder | None = None
+        self.chosen = np.zeros(blocks_of(picture_size), dtype=bool)
+        self.frame: np.ndarray | None = None  # the video's last frame; None: the model's picture alone
+        self._counter: int | None = None  # the last payload's; None: waiting for a key
+        #: (first frame, the video's frame or None for the model's picture alone, chosen blocks)
+        self._states: deque[tuple[int, np.ndarray | None, np.ndarray]] = deque(maxlen=HELD)
+
+    def take(self, seq: int, payload: bytes) -> bool:
+        """Read the payload of frame ``seq``; False if it cannot be used (damaged, or no key since a
+        loss), after which the model's picture is drawn alone until the next key."""
+        if not payload:
+            return self._lost(seq)
+        key, only, counter = bool(payload[0] & KEY), bool(payload[0] & BLOCKS_ONLY), payload[0] >> 2
+        if not key and (self._counter is None or counter != (self._counter + 1) % COUNTER):
+            return self._lost(seq)
+        blocks = decode_blocks(np.zeros_like(self.chosen) if key else self.chosen, payload[1:])
+        if blocks is None or (only and (key or len(payload) != 1 + blocks[1] or self.frame is None)):
+            return self._lost(seq)
+        frame = self.frame if only else self._decode(payload[1 + blocks[1]:], key)
+        if frame is None:
+            return self._lost(seq)
+        self._hold(seq, frame, blocks[0], counter)
+        return True
+
+    def make(self, seq: int, video: bytes | None, key: bool,
+             choose: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> bytes | None:
+        """The payload of frame ``seq`` for the sender's temporal unit ``video`` (None: blocks only,
+        the last frame held), taken as :meth:`take` takes it; its blocks are ``choose(the decoded
+        frame, the last choice)``. None (nothing to send) for blocks only that change nothing."""
+        counter = 0 if self._counter is None else (self._counter + 1) % COUNTER
+        frame = self.frame if video is None else self._decode(video, key)
+        if frame is None:
+            raise ValueError("no frame to hold" if video is None else "the layer's own video did not decode")
+        chosen = choose(frame, self.chosen)
+        if video is None and np.array_equal(chosen, self.chosen):
+            return None
+        start = np.zeros_like(chosen) if key else self.chosen
+        flags = int(key) | (BLOCKS_ONLY if video is None else 0) | counter << 2
+        data = bytes([flags]) + encode_blocks(start, chosen) + (video or b"")
+        self._hold(seq, frame, chosen, counter)
+        return data
+
+    def draw(self, seq: int, model: np.ndarray) -> np.ndarray:
+        """The picture of frame ``seq`` whose model's picture is ``model``."""
+        while len(self._states) > 1 and self._states[1][0] <= seq:
+            self._states.popleft()
+        if not self._states or self._states[0][0] > seq or self._states[0][1] is None:
+            return model
+        _, frame, chosen = self._states[0]
+        return blend(model, frame, chosen, self.picture_size)
+
+    def _decode(self, video: bytes, key: bool) -> np.ndarray | None:
+        if key or self._decoder is None:
+            self._decoder = VideoDecoder(video_size(self.picture_size, max(self.picture_size)))
+        return self._decoder.decode(video)
+
+    def _hold(self, seq: int, frame: np.ndarray | None, chosen: np.ndarray, counter: int | None) -> None:
+        self.chosen, self._counter, self.frame = chosen, counter, frame
+        self._states.append((seq, frame, chosen))
+
+    def _lost(self, seq: int) -> bool:
+        self._decoder = None
+        self._hold(seq, None, np.zeros_like(self.chosen), None)
+        return False

@@ -1,0 +1,125 @@
+"""The picture layer's video and blocks (codec/frame_video.py), apart from a call."""
+
+import numpy as np
+import pytest
+
+from facedeform.codec.frame_video import (
+    BLOCK,
+    VideoDecoder,
+    VideoEncoder,
+    VideoLayer,
+    blend,
+    blocks_of,
+    decode_blocks,
+    encode_blocks,
+    video_size,
+)
+
+PICTURE = (128, 96)  # w, h
+
+
+def frames(n: int, size=(64, 64)) -> list[np.ndarray]:
+    """A bright square moving over a gradient."""
+    w, h = size
+    out = []
+    for i in range(n):
+        f = np.tile(np.linspace(20, 200, w, dtype=np.uint8)[None, :, None], (h, 1, 3))
+        f[10:30, 5 + 2 * i:25 + 2 * i] = (250, 40, 40)
+        out.append(f)
+    return out
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_blocks_code_back_to_themselves(seed):
+    rng = np.random.default_rng(seed)
+    before = rng.random(blocks_of(PICTURE)) < 0.5
+    after = before ^ (rng.random(before.shape) < 0.2)
+    data = encode_blocks(before, after)
+    got, used = decode_blocks(before, data + b"tail")
+    np.testing.assert_array_equal(got, after)
+    assert used == len(data)
+    assert len(encode_blocks(after, after)) <= 1  # no change costs next to nothing
+
+
+def test_blocks_cut_short_do_not_decode():
+    before = np.zeros(blocks_of(PICTURE), bool)
+    after = np.random.default_rng(1).random(before.shape) < 0.5
+    assert decode_blocks(before, encode_blocks(before, after)[:1]) is None
+
+
+def test_video_sizes_are_even_at_least_64_and_keep_the_shape():
+    assert video_size((256, 256), 64) == (64, 64)
+    assert video_size((1920, 1080), 480) == (480, 270)
+    assert video_size((256, 144), 64) == (114, 64)  # the smaller side at SVT-AV1's least
+    assert video_size((40, 40), 10) == (64, 64)
+
+
+def test_both_ends_of_a_video_hold_the_same_frames_and_blocks():
+    sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
+    encoder = VideoEncoder((64, 64), 20_000, 25)
+    model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
+    for seq, frame in enumerate(frames(6)):
+        def choose(decoded, before, odd=seq % 2):
+            return np.eye(*before.shape, dtype=bool) if odd else before
+
+        data = sender.make(seq, encoder.encode(frame, key=seq == 0), seq == 0, choose)
+        assert receiver.take(seq, data)
+        np.testing.assert_array_equal(receiver.chosen, sender.chosen)
+        np.testing.assert_array_equal(receiver.draw(seq, model), sender.draw(seq, model))
+    assert sender.frame is not None and np.abs(sender.frame.astype(int) - frames(6)[-1]).mean() < 20
+
+
+def test_a_gap_in_the_counter_draws_the_model_alone_until_the_next_key():
+    sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
+    encoder = VideoEncoder((64, 64), 20_000, 25)
+    model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
+    keep = lambda decoded, before: before  # noqa: E731
+    payloads = [sender.make(seq, encoder.encode(f, key=seq in (0, 4)), seq in (0, 4), keep)
+                for seq, f in enumerate(frames(6))]
+    assert receiver.take(0, payloads[0]) and receiver.take(1, payloads[1])
+    assert not receiver.take(3, payloads[3])  # 2 was lost
+    np.testing.assert_array_equal(receiver.draw(1, model), sender.draw(1, model))  # a frame before it, drawn late
+    np.testing.assert_array_equal(receiver.draw(3, model), model)
+    assert receiver.take(4, payloads[4]) and receiver.take(5, payloads[5])  # the key
+    np.testing.assert_array_equal(receiver.draw(5, model), sender.draw(5, model))
+
+
+def test_blocks_only_hand_blocks_to_the_model_over_the_held_frame():
+    sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
+    encoder = VideoEncoder((64, 64), 20_000, 25)
+    model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
+    none = lambda decoded, before: np.zeros_like(before)  # noqa: E731
+    every = lambda held, before: np.ones_like(before)  # noqa: E731
+    assert receiver.take(0, sender.make(0, encoder.encode(frames(1)[0], key=True), True, none))
+    assert sender.make(1, None, False, none) is None  # nothing changes: nothing to send
+    data = sender.make(1, None, False, every)
+    assert data is not None and len(data) <= 8  # a flags byte and the blocks: no video
+    assert receiver.take(1, data) and receiver.chosen.all()
+    np.testing.assert_array_equal(receiver.draw(1, model), model)  # every block the model's
+
+
+def test_a_blocks_only_key_or_junk_after_the_blocks_is_refused():
+    layer = VideoLayer(PICTURE)
+    assert not layer.take(0, b"\x03\x00")
+    assert not layer.take(0, b"")
+    assert not layer.take(0, b"\x01\x00" + b"\x12\x00not av1")
+
+
+def test_the_decoder_refuses_frames_larger_than_its_limit_and_junk():
+    large = VideoEncoder((128, 128), 20_000, 25).encode(np.zeros((128, 128, 3), np.uint8), key=True)
+    assert VideoDecoder((64, 64)).decode(large) is None
+    assert VideoDecoder((128, 128)).decode(large).shape == (128, 128, 3)
+    assert VideoDecoder((64, 64)).decode(b"\x00" * 40) is None
+
+
+def test_blend_draws_the_model_in_its_blocks_and_the_video_elsewhere():
+    model = np.full((PICTURE[1], PICTURE[0], 3), 200, np.uint8)
+    video = np.full((24, 32, 3), 40, np.uint8)
+    rows, columns = blocks_of(PICTURE)
+    chosen = np.zeros((rows, columns), bool)
+    chosen[:, : columns // 2] = True
+    out = blend(model, video, chosen, PICTURE)
+    assert out.shape == model.shape and out.dtype == np.uint8
+    assert (out[:, :BLOCK // 2] == 200).all()  # well inside the model's blocks
+    assert (np.abs(out[:, -BLOCK // 2:].astype(int) - 40) <= 1).all()  # well inside the video's
+    np.testing.assert_array_equal(blend(model, video, np.ones_like(chosen), PICTURE), model)
