@@ -35,6 +35,7 @@ SMALLEST = 40
 #: of what the parameters really leave (skips spread evenly, where a full 2-second window once
 #: held a stale frame for 16 frames).
 BURST = 0.5  # seconds of its share the video may save up
+HEADROOM = 1.5  # a video frame goes only if the 2-second window has room for 1.5 times the usual one
 PARAMETER_MEMORY = 25  # frames over which the parameters' bits are averaged
 BLOCKS_SHARE = 0.1  # of the layer's rate, for payloads of blocks only between video frames
 #: A block goes back to the model between video frames only if the model's picture is this
@@ -123,7 +124,7 @@ class PictureLayer:
         self._parameter_bits += (spent - self._parameter_bits) / PARAMETER_MEMORY
         share = (1 - BLOCKS_SHARE) * max(0.0, self._frame_bits - self._parameter_bits)
         self._credit = min(self._credit + share, BURST * share * self._fps)
-        if seq % self._every == 0 and (key or (self._credit >= 0 and room >= self._size)):
+        if seq % self._every == 0 and (key or (self._credit >= 0 and room >= HEADROOM * self._size)):
             packets = self._send(seq, self._rgb(frame_bgr), model, key, encoder)
         elif self._layer.frame is not None and min(self._saved, room) >= 8 * (PACKING + 4):
             rgb = self._rgb(frame_bgr)
@@ -151,8 +152,8 @@ class PictureLayer:
         data = self._layer.make(seq, video, key, lambda decoded, before: choose_blocks(model, decoded, rgb, before))
         packets = encoder.picture(seq, data)
         bits = 8 * stream_size(packets, self._sealed)
-        if self._last_key is not None:  # the first key is the call's start, not its rate
+        if self._last_key is not None:  # a packet's size to expect: the first key aside
             self._size += (bits - self._size) / 4
-            self._credit -= bits
+        self._credit -= bits
         self._last_key = seq if key else self._last_key
         return packets
