@@ -126,6 +126,14 @@ def blocks_of(picture_size: tuple[int, int]) -> tuple[int, int]:
     return -(-h // BLOCK), -(-w // BLOCK)
 
 
+def blocks_in(box: tuple[float, float, float, float], picture_size: tuple[int, int]) -> np.ndarray:
+    """(rows, columns) bool: the blocks that ``box`` (x0, y0, x1, y1 in the picture's pixels) overlaps."""
+    rows, columns = blocks_of(picture_size)
+    x0, y0, x1, y1 = box
+    top, left = np.arange(rows)[:, None] * BLOCK, np.arange(columns)[None, :] * BLOCK
+    return (top + BLOCK > y0) & (top < y1) & (left + BLOCK > x0) & (left < x1)
+
+
 def encode_blocks(before: np.ndarray, after: np.ndarray) -> bytes:
     """The (rows, columns) bool choice ``after`` as changes from ``before``."""
     coder, model = Encoder(), AdaptiveBit(*_CHANGE)
@@ -203,10 +211,10 @@ def _mix(model, up, coarse, agree, soft, out) -> None:  # pragma: no cover - com
 
 
 def choose_blocks(model: np.ndarray, video: np.ndarray, frame: np.ndarray, before: np.ndarray,
-                  hysteresis: float = 1.5) -> np.ndarray:
+                  hysteresis: float = 1.5, favour: np.ndarray | None = None) -> np.ndarray:
     """The sender's choice: the blocks where the model's picture is nearer ``frame`` than the
     video's, by ``hysteresis`` times to change a block's last choice ``before`` (a choice that
-    flickers costs bits and shows)."""
+    flickers costs bits and shows), the video's error counted ``favour`` times (per block)."""
     up, coarse, agree = _video_parts(model, video)
     sharpened = up + agree[..., None] * (model.astype(np.float32) - coarse)
     rows, columns = before.shape
@@ -218,6 +226,8 @@ def choose_blocks(model: np.ndarray, video: np.ndarray, frame: np.ndarray, befor
         return error.reshape(rows, BLOCK, columns, BLOCK).sum(axis=(1, 3))
 
     by_model, by_video = per_block(model), per_block(sharpened)
+    if favour is not None:
+        by_video = by_video * favour
     return np.where(before, by_model < hysteresis * by_video, hysteresis * by_model < by_video)
 
 

@@ -10,7 +10,7 @@ import numpy as np
 from facedeform.codec.camera import Camera
 from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, Deformer
 from facedeform.codec.eyelids import Eyelids
-from facedeform.codec.face_model import BaseFace
+from facedeform.codec.face_model import BaseFace, mouth_vertices
 from facedeform.codec.frame_video import VideoLayer
 from facedeform.codec.mouth_interior import LOWER_LIP, UPPER_LIP
 from facedeform.codec.picture import SceneMesh, face_texture, frame_placement, global_matrix
@@ -150,6 +150,10 @@ class PictureView(FaceView):
         self._camera = _picture_camera(size)
         self._seq = -1
         self.layer = VideoLayer(self._picture_size)
+        self._lips = mouth_vertices(face)
+        #: The mouth's box (x0, y0, x1, y1) in the picture's pixels in the last picture drawn, with
+        #: a quarter of its width around (the picture layer leaves it to the model where it can).
+        self.mouth_box = (0.0, 0.0, 0.0, 0.0)
         self._lids = Eyelids(face, self._scene.rest_pixels, self._picture_size)
         self._shut: tuple[float, ...] = (0.0, 0.0)  # how far each eye is closed (codec/eyelids.py)
         self._open = 1.0  # how open the mouth is, against the person's open mouth (codec/mouth_interior.py)
@@ -179,6 +183,9 @@ class PictureView(FaceView):
         if opening != self._open and interior is not None:
             self._open = opening
             self._patch(0, self._scene.mouth_row, interior.drawn(opening))
+        lips = self._scene.pixels(positions)[self._lips]
+        reach = 0.25 * (lips[:, 0].max() - lips[:, 0].min())
+        self.mouth_box = (*(lips.min(axis=0) - reach), *(lips.max(axis=0) + reach))
         return self._renderer.render(positions * self._scale, self._camera)[0]
 
     def _placed(self, full: np.ndarray, shape: np.ndarray | None = None

@@ -9,7 +9,9 @@ from facedeform.codec.frame_video import (
     VideoEncoder,
     VideoLayer,
     blend,
+    blocks_in,
     blocks_of,
+    choose_blocks,
     decode_blocks,
     encode_blocks,
     video_size,
@@ -123,3 +125,14 @@ def test_blend_draws_the_model_in_its_blocks_and_the_video_elsewhere():
     assert (out[:, :BLOCK // 2] == 200).all()  # well inside the model's blocks
     assert (np.abs(out[:, -BLOCK // 2:].astype(int) - 40) <= 1).all()  # well inside the video's
     np.testing.assert_array_equal(blend(model, video, np.ones_like(chosen), PICTURE), model)
+
+
+def test_blocks_in_a_box_and_a_favoured_model():
+    inside = blocks_in((40.0, 10.0, 70.0, 33.0), PICTURE)
+    assert inside.shape == blocks_of(PICTURE) and inside.sum() == 4  # columns 1-2, rows 0-1
+    assert inside[0, 1] and inside[1, 2] and not inside[0, 0] and not inside[2, 1]
+    frame = np.full((PICTURE[1], PICTURE[0], 3), 100, np.uint8)
+    model, video = frame + 12, np.full((24, 32, 3), 106, np.uint8)  # the video four times as near (squared)
+    before = np.zeros(blocks_of(PICTURE), bool)
+    assert not choose_blocks(model, video, frame, before).any()
+    assert choose_blocks(model, video, frame, before, favour=np.where(inside, 8.0, 1.0)).sum() == 4
