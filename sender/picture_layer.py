@@ -21,7 +21,7 @@ from facedeform.protocol.stream import Header, PacketEncoder, stream_size
 from facedeform.sender.config import PARAMETER_FLOOR, parameter_rate
 
 WINDOW = 2.0  # seconds over which the whole stream must keep within MARGIN of its rate
-MARGIN = 1.05
+MARGIN = 1.0  # the layer fills the window to the rate: the parameters' own bursts take the 10 % above
 PACKING = 9  # bytes a layer packet adds to its payload (sync, type, length, frame, size, offset, check)
 #: Bytes of the smallest video packet to plan for: AV1's smallest frame at these sizes (about 20
 #: bytes), its packing and blocks, and room for what moves. Below a rate that pays for one every
