@@ -146,7 +146,9 @@ def bd_table(rows: list[dict], ours: str = "ours-auto-own") -> str:
             cells = []
             for metric in ("psnr", "vmaf"):
                 value = bd_rate(by_metric[metric][ours], by_metric[metric][codec])
-                cells.append("no overlap" if value is None else f"{value:+.0f} %")
+                single = len(by_metric[metric][codec][0]) < 2  # a floor alone is a point, not a curve
+                cells.append(("one setting: run --rungs 2 or more" if single else "no overlap") if value is None
+                             else f"{value:+.0f} %")
             lines.append(f"| {size} | {codec} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

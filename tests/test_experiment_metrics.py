@@ -203,3 +203,16 @@ def test_bd_rate_is_the_rate_saved_at_equal_quality():
     # only where both curves reach: ours from 26 dB up against theirs to 24 dB is no overlap
     assert bd_rate((rate, quality + 6), (rate, quality - 8)) is None
     assert bd_rate((rate[:1], quality[:1]), (rate, quality)) is None  # one point is no curve
+
+
+def test_the_bd_table_says_when_a_baseline_has_one_setting_only():
+    from facedeform.experiment.report import bd_table
+
+    def row(codec, setting, kbps, psnr):
+        return {"size": 256, "codec": codec, "setting": setting, "bitrate_bps": 1000 * kbps,
+                "bitrate_oneoff_bps": 1000 * kbps, "psnr": psnr, "vmaf": 3 * psnr}
+
+    ours = [row("ours-auto-own", f"{k}k", k, 20 + k) for k in (2, 4, 8)]
+    one = bd_table(ours + [row("x264", "crf51", 5, 24)])
+    two = bd_table(ours + [row("x264", "crf51", 5, 24), row("x264", "crf48", 7, 26)])
+    assert "one setting: run --rungs 2 or more" in one and "%" in two and "one setting" not in two
