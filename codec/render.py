@@ -165,10 +165,6 @@ class Renderer:
             raise ValueError(f"{name} must be a bool mask of shape ({len(self.faces)},)")
         return mask
 
-    def set_texture(self, uv, texture) -> None:
-        """Texture with ``texture`` at ``uv`` from the next frame on: as the constructor's (a renewed picture)."""
-        self._uv, self._texture = self._parse_texture(uv, texture)
-
     def patch_texture(self, x: int, y: int, image: np.ndarray) -> None:
         """Replace the texture's pixels from column ``x``, row ``y`` (from the top) by ``image``
         ((h, w, 3) uint8, inside the texture): a part that changes often (the open mouth), without

@@ -43,7 +43,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                                      "--bitrates)")
     p.add_argument("--bitrates", type=number(0.5, 1000), nargs="*", default=[], metavar="KBPS",
                    help="also our runs at these rates (fd-send --bitrate: with the own face, what the parameters "
-                        "leave renews the picture), e.g. 1.5 4 10 30")
+                        "leave carries the picture layer), e.g. 1.5 4 10 30")
     p.add_argument("--layouts", nargs="+", default=["auto"], choices=("auto", "paper", "full", "mouth", "personal"),
                    help="our parameter sets (default auto: fd-send's default, personal with the own face's "
                         "motion basis); personal runs with the own face only")

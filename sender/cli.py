@@ -68,10 +68,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                       metavar="KBPS",
                       help="the stream's rate after its header, in kbit/s, instead of a --quality. With a --face "
                            "that has a reference picture (fd-enroll's default) the parameters aim at 20 %% of it "
-                           "(at least 1.6 kbit/s) and the rest renews the receiver's picture where the face model "
-                           "cannot show the frame (the picture layer: what a turn, a lean or a moving camera "
-                           "uncovers), the whole kept within 5 %% of the rate over any 2 s; more kbit/s, a better "
-                           "picture. Otherwise the finest quality level that codes the call's first second within "
+                           "(at least 1.6 kbit/s) and the rest carries the real frame as a small AV1 video, drawn "
+                           "where the face model cannot show the frame (the picture layer: what a turn, a lean or "
+                           "a moving camera uncovers), the whole kept within 10 %% of the rate over any 2 s; more "
+                           "kbit/s, a better picture (none below about 3 kbit/s at 256x256). Otherwise the "
+                           "finest quality level that codes the call's first second within "
                            "it (chosen once: livelier talking later costs more)")
     rate.add_argument("--quality", type=number(*LIMITS["quality"], kind=int), default=default("quality"),
                       metavar="1-5",

@@ -49,8 +49,8 @@ class SendConfig:
     for loss and late join by ``protocol.encoder.Datagrams``; rule: the deformation rule
     (``codec.regions.RULES``) the parameters are fitted to and the receiver deforms with, named in
     the header; picture_layer: with a ``bitrate`` and a face with a reference picture, spend what
-    the parameters leave of it renewing the receiver's picture (sender/picture_layer.py; the
-    parameters then aim at :func:`parameter_rate` of it).
+    the parameters leave of it on the real frame as a small video where the model's picture
+    misses it (sender/picture_layer.py; the parameters then aim at :func:`parameter_rate` of it).
     """
 
     quality: int = DEFAULT_QUALITY
