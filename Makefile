@@ -16,12 +16,14 @@ demo: $(STAMP)
 	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg | $(VENV)/bin/fd-recv -o out/demo.mp4
 	$(VENV)/bin/fd-enroll samples/grid_bbaf2n.mpg -o out/grid.fdface
 	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg --face out/grid.fdface | $(VENV)/bin/fd-recv -o out/demo-picture.mp4
+	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg --face out/grid.fdface --bitrate 10 | $(VENV)/bin/fd-recv -o out/demo-layer.mp4
 	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg --face out/grid.fdface | $(VENV)/bin/fd-recv --look face -o out/demo-own-face.mp4
 	$(VENV)/bin/fd-send samples/grid_bbaf2n.mpg --face out/grid.fdface --params paper --rule paper | $(VENV)/bin/fd-recv --look face -o out/demo-paper.mp4
 	$(VENV)/bin/python docs/make_demo_picture.py --video out/demo-side-by-side.mp4
 	@echo "wrote out/demo.mp4 (generic shaded face), out/demo-picture.mp4 (the speaker's whole picture: their"
 	@echo "reference picture warped by their moving face model), out/demo-side-by-side.mp4 (original | whole"
-	@echo "picture | shaded face), out/demo-own-face.mp4 (their textured face alone, with their motion basis)"
+	@echo "picture | shaded face), out/demo-layer.mp4 (the whole picture with the picture layer at 10 kbit/s),"
+	@echo "out/demo-own-face.mp4 (their textured face alone, with their motion basis)"
 	@echo "and out/demo-paper.mp4 (their face moved by the paper's model exactly: its 13 parameters and equations)"
 
 test: $(STAMP)

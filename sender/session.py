@@ -261,8 +261,10 @@ class SendSession:
 
     def summary(self) -> str:
         s = self.stats()
+        layer = "" if s["picture_packets"] is None else \
+            f" ({s['picture_bits_per_frame'] * s['fps'] / 1000:.2f} of them the picture layer's)"
         return (f"{s['frames']} frames ({s['frames_without_face']} without a face), "
-                f"{s['bits_per_frame']:.0f} bits/frame, {s['kbit_per_s']:.2f} kbit/s at {s['fps']:g} fps "
+                f"{s['bits_per_frame']:.0f} bits/frame, {s['kbit_per_s']:.2f} kbit/s{layer} at {s['fps']:g} fps "
                 f"(+{s['header_bytes']} header bytes), rest face: frame {s['rest_frame']}, "
                 f"{s['frames_per_second']:.1f} frames/s")
 
