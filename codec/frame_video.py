@@ -5,13 +5,13 @@ Why a video codec of the frame itself, not a residual over the model's picture: 
 dev clips' 256x256 crops, an earlier layer that coded what the model missed as WebP residuals
 (every still image on its own) gave pcavs_Pose_Source 23.4 dB at 4 kbit/s and 25.1 at 10; AV1 of
 the model's residual as a video did worse than AV1 of the frame (the residual's edges move where
-the model is off, which costs more than the frame), and AV1 of the frame at 64x64 gave 27 dB at
-8 kbit/s: its motion search follows a turning head and a leaning body that the model cannot.
+the model is off, which costs more than the frame), and AV1 of the frame at 64x64 gave 26.1 dB at
+7.9 kbit/s: its motion search follows a turning head and a leaning body that the model cannot.
 The model keeps what a picture that small cannot show: where the sender finds the model's
 picture nearer the frame (a still face's detail, most of a still clip), that block is the model's;
 elsewhere the video's, sharpened by the model's detail where the two agree (:func:`blend`).
-No library takes a rendered frame as its prediction; this choice per block is the one the
-model makes through. The numbers are in docs/picture_layer.md.
+No library coder takes a rendered frame as its prediction; choosing per block is how the
+model gets into the picture. The numbers are in docs/picture_layer.md.
 
 A layer packet's payload (the picture packet of protocol/framing.py)::
 
@@ -39,7 +39,7 @@ from numba import njit
 
 from facedeform.protocol.arith import AdaptiveBit, Decoder, Encoder, Incomplete
 
-BLOCK = 32  # pixels of the picture per model-or-video choice (16 cost four times the bits for 0.2 dB)
+BLOCK = 32  # pixels of the picture per model-or-video choice (16: four to seven times the bits for 0.24 dB)
 #: SVT-AV1's speed preset: slower ones (8, 6) changed PSNR by -0.2 to +0.5 dB on two moving clips
 #: at 4 and 10 kbit/s, and the sender runs at 50 frames/s with 10.
 PRESET = "10"
@@ -87,7 +87,6 @@ class VideoEncoder:
         self._count += 1
         data = b"".join(bytes(p) for p in self._codec.encode(frame))
         return data[len(_TEMPORAL_DELIMITER):] if data.startswith(_TEMPORAL_DELIMITER) else data
-
 
     def close(self) -> None:
         """Ends the encoder: its last packets, if any, are not needed (each frame's came at once)."""

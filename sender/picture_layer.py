@@ -98,9 +98,9 @@ class PictureLayer:
         layer = layer_rate(bitrate)
         share = next(s for most, s in SIDES if layer * 256 ** 2 / (width * height) < most)
         self._video_size = video_size(self.size, max(width, height) * share)
-        self._every = max(1, ceil(header.fps * 8 * SMALLEST / ((1 - BLOCKS_SHARE) * layer)))
+        video = (1 - BLOCKS_SHARE) * layer  # bit/s
+        self._every = max(1, ceil(header.fps * 8 * SMALLEST / video))
         sent = header.fps / self._every  # video packets a second
-        video = (1 - BLOCKS_SHARE) * layer
         self._encoder = VideoEncoder(self._video_size, video - 8 * PACKING * sent, sent)
         self._fps = header.fps
         self._parameter_bits = parameter_rate(bitrate) / header.fps  # the parameters' bits a frame, a running mean
