@@ -240,8 +240,7 @@ class VideoLayer:
     def __init__(self, picture_size: tuple[int, int]) -> None:
         self.picture_size = picture_size
         self._decoder: VideoDecoder | None = None
-        self.chosen = np.zeros(blocks_of(picture_size), dtype=bool)
-        self.frame: np.ndarray | None = None  # the video's last frame; None: the model's picture alone
+        self._none = np.zeros(blocks_of(picture_size), dtype=bool)  # no block the model's
         self._counter: int | None = None  # the last payload's; None: waiting for a key
         #: (first frame, the video's frame or None for the model's picture alone, chosen blocks)
         self._states: deque[tuple[int, np.ndarray | None, np.ndarray]] = deque(maxlen=HELD)
@@ -254,7 +253,7 @@ class VideoLayer:
         key, only, counter = bool(payload[0] & KEY), bool(payload[0] & BLOCKS_ONLY), payload[0] >> 2
         if not key and (self._counter is None or counter != (self._counter + 1) % COUNTER):
             return self._lost(seq)
-        blocks = decode_blocks(np.zeros_like(self.chosen) if key else self.chosen, payload[1:])
+        blocks = decode_blocks(self._none if key else self.chosen, payload[1:])
         if blocks is None or (only and (key or len(payload) != 1 + blocks[1] or self.frame is None)):
             return self._lost(seq)
         frame = self.frame if only else self._decode(payload[1 + blocks[1]:], key)
@@ -275,11 +274,21 @@ class VideoLayer:
         chosen = choose(frame, self.chosen)
         if video is None and np.array_equal(chosen, self.chosen):
             return None
-        start = np.zeros_like(chosen) if key else self.chosen
+        start = self._none if key else self.chosen
         flags = int(key) | (BLOCKS_ONLY if video is None else 0) | counter << 2
         data = bytes([flags]) + encode_blocks(start, chosen) + (video or b"")
         self._hold(seq, frame, chosen, counter)
         return data
+
+    @property
+    def chosen(self) -> np.ndarray:
+        """The model's blocks as the last payload left them."""
+        return self._states[-1][2] if self._states else self._none
+
+    @property
+    def frame(self) -> np.ndarray | None:
+        """The video's last frame; None: the model's picture alone."""
+        return self._states[-1][1] if self._states else None
 
     def draw(self, seq: int, model: np.ndarray) -> np.ndarray:
         """The picture of frame ``seq`` whose model's picture is ``model``."""
@@ -296,10 +305,10 @@ class VideoLayer:
         return self._decoder.decode(video)
 
     def _hold(self, seq: int, frame: np.ndarray | None, chosen: np.ndarray, counter: int | None) -> None:
-        self.chosen, self._counter, self.frame = chosen, counter, frame
+        self._counter = counter
         self._states.append((seq, frame, chosen))
 
     def _lost(self, seq: int) -> bool:
         self._decoder = None
-        self._hold(seq, None, np.zeros_like(self.chosen), None)
+        self._hold(seq, None, self._none, None)
         return False

@@ -151,9 +151,7 @@ class PictureView(FaceView):
         self._seq = -1
         self.layer = VideoLayer(self._picture_size)
         self._lips = mouth_vertices(face)
-        #: The mouth's box (x0, y0, x1, y1) in the picture's pixels in the last picture drawn, with
-        #: a quarter of its width around (the picture layer leaves it to the model where it can).
-        self.mouth_box = (0.0, 0.0, 0.0, 0.0)
+        self._positions: np.ndarray | None = None  # the scene's vertices in the last picture drawn
         self._lids = Eyelids(face, self._scene.rest_pixels, self._picture_size)
         self._shut: tuple[float, ...] = (0.0, 0.0)  # how far each eye is closed (codec/eyelids.py)
         self._open = 1.0  # how open the mouth is, against the person's open mouth (codec/mouth_interior.py)
@@ -183,10 +181,20 @@ class PictureView(FaceView):
         if opening != self._open and interior is not None:
             self._open = opening
             self._patch(0, self._scene.mouth_row, interior.drawn(opening))
-        lips = self._scene.pixels(positions)[self._lips]
-        reach = 0.25 * (lips[:, 0].max() - lips[:, 0].min())
-        self.mouth_box = (*(lips.min(axis=0) - reach), *(lips.max(axis=0) + reach))
+        self._positions = positions
         return self._renderer.render(positions * self._scale, self._camera)[0]
+
+    @property
+    def mouth_box(self) -> tuple[float, float, float, float]:
+        """The mouth's box (x0, y0, x1, y1) in the picture's pixels in the last picture drawn, with a
+        quarter of its width around (the picture layer leaves it to the model where it can); all 0
+        before the first."""
+        if self._positions is None:
+            return 0.0, 0.0, 0.0, 0.0
+        lips = self._scene.pixels(self._positions)[self._lips]
+        reach = 0.25 * (lips[:, 0].max() - lips[:, 0].min())
+        (x0, y0), (x1, y1) = lips.min(axis=0) - reach, lips.max(axis=0) + reach
+        return float(x0), float(y0), float(x1), float(y1)
 
     def _placed(self, full: np.ndarray, shape: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
