@@ -20,7 +20,7 @@ speaker blinks. ``fit swing``: the same swing on the meshes themselves (deformed
 unquantised fit against the target), which tells the fit's loss from the coding's and the
 drawing's.
 
-    .venv/bin/python benchmarks/bench_expression.py /path/to/dev/*.mp4 --out results/
+    .venv/bin/python benchmarks/bench_expression.py /path/to/dev/*.mp4 /path/to/dev/*.mpg --out results/
 """
 
 import argparse

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facedeform.protocol.encoder import Datagrams
+from facedeform.protocol.encoder import COPIES, Datagrams
 from facedeform.protocol.stream import DatagramDecoder, Frame, PacketEncoder
 from facedeform.sender.session import first_basis, read_dump, stream_header
 
@@ -110,15 +110,16 @@ def longest_freeze(good: np.ndarray) -> int:
     return longest
 
 
-def bench_bursts(dumps: list[Path], seeds: int, key_interval: int | None = None) -> None:
+def bench_bursts(dumps: list[Path], seeds: int, key_interval: int | None = None, copies: int = COPIES) -> None:
     patterns = [("random 5 %", 0.05, "fixed", 1), ("random 10 %", 0.10, "fixed", 1),
                 ("random 20 %", 0.20, "fixed", 1), ("bursts of 2, 5 %", 0.05, "fixed", 2),
                 ("bursts of 3, 5 %", 0.05, "fixed", 3),
                 ("bursts of 8, 5 %", 0.05, "fixed", 8), ("Gilbert-Elliott 5 %, bursts of 3", 0.05, "ge", 3),
                 ("Gilbert-Elliott 10 %, bursts of 3", 0.10, "ge", 3)]
-    streams = [datagrams(path, 1, key_interval=key_interval) for path in dumps]
+    streams = [datagrams(path, copies, key_interval=key_interval) for path in dumps]
     bits = np.mean([8 * (sum(map(len, stream)) - head) / n for stream, head, n in streams])
-    print(f"{bits:.1f} bits a frame, header excluded, a keyframe every {key_interval or 'second'}\n")
+    print(f"{bits:.1f} bits a frame, header excluded, a keyframe every {key_interval or 'second'}, "
+          f"{copies} copies\n")
     print("| pattern | good frames % | + reordered, duplicated | longest freeze, mean (worst) "
           "| + reordered, duplicated |")
     print("|---|---|---|---|---|")
@@ -207,13 +208,14 @@ def main() -> None:
     p.add_argument("dumps", nargs="*", type=Path, help="fd-send --dump files (the default layout's)")
     p.add_argument("--seeds", type=int, default=5)
     p.add_argument("--key-interval", type=int, help="bursts: frames between keyframes (default: a second's)")
+    p.add_argument("--copies", type=int, default=COPIES, help="bursts: frames packets each datagram carries again")
     p.add_argument("--rates", type=int, nargs="*", default=[0, 2000, 5000, 10000, 20000, 40000])
     p.add_argument("--seconds", type=float, default=6.0, help="flood: length of the call")
     args = p.parse_args()
     if args.what == "loss":
         bench_loss(args.dumps, args.seeds)
     elif args.what == "bursts":
-        bench_bursts(args.dumps, args.seeds, args.key_interval)
+        bench_bursts(args.dumps, args.seeds, args.key_interval, args.copies)
     elif args.what == "header":
         bench_header(args.dumps)
     else:

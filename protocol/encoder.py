@@ -51,18 +51,18 @@ class PacketEncoder:
     the previous does not count towards ``frames_per_packet``. ``dead_zone``
     (steps, 0.5-4; 0.5: plain rounding) bounds each coded value's error (each parameter's, or
     with the header's basis each coordinate's): see :func:`protocol.quantise.hold_or_round`.
-    It holds across keyframes too, so a still value does not jump once a second.
+    It holds across keyframes too, so a still value does not jump once a second. The receiver
+    does not know it, so :attr:`dead_zone` may change between frames (``protocol.rate.RateKeeper``).
     """
 
     def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"",
                  dead_zone: float = DEAD_ZONE) -> None:
         if not 1 <= frames_per_packet <= MAX_COUNT:
             raise BitstreamError(f"frames per packet must be 1-{MAX_COUNT}")
-        if not 0.5 <= dead_zone <= MAX_DEAD_ZONE:
-            raise BitstreamError(f"dead zone must be 0.5-{MAX_DEAD_ZONE:g} steps, not {dead_zone!r}")
         if len(model) != header.model_size:
             raise BitstreamError(f"header announces {header.model_size} model bytes, got {len(model)}")
-        self._h, self._fpp, self._model, self._dead_zone = header, frames_per_packet, model, dead_zone
+        self._h, self._fpp, self._model = header, frames_per_packet, model
+        self.dead_zone = dead_zone
         self._new_bit = models_for(header)
         self._frames = 0
         self._held: list[int] | None = None
@@ -71,6 +71,17 @@ class PacketEncoder:
         self._group: GroupState | None = None
         self._coder: Encoder | None = None
         self._kind = self._first = self._count = 0
+
+    @property
+    def dead_zone(self) -> float:
+        """Steps a coded value may stay from the parameter before it is sent again (0.5-4)."""
+        return self._dead_zone
+
+    @dead_zone.setter
+    def dead_zone(self, steps: float) -> None:
+        if not 0.5 <= steps <= MAX_DEAD_ZONE:
+            raise BitstreamError(f"dead zone must be 0.5-{MAX_DEAD_ZONE:g} steps, not {steps!r}")
+        self._dead_zone = steps
 
     def header(self) -> list[bytes]:
         """The header packet, then the face model in chunks."""

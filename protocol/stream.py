@@ -11,10 +11,10 @@ from facedeform.protocol.encoder import Datagrams, PacketEncoder, StreamEncoder,
 from facedeform.protocol.events import Damage, End, Frame, Model, Picture, Stats
 from facedeform.protocol.header import VERSION, Header
 from facedeform.protocol.quantise import DEFAULT_QUALITY, QUALITIES, steps_for
-from facedeform.protocol.rate import quality_for_bitrate
+from facedeform.protocol.rate import RateKeeper, quality_for_bitrate
 
 __all__ = [
     "DEFAULT_QUALITY", "QUALITIES", "VERSION", "Damage", "DatagramDecoder", "Datagrams", "End", "Frame", "Header",
     "Model", "PacketDecoder", "Picture", "PacketEncoder", "Stats", "StreamDecoder", "StreamEncoder", "frame_bytes",
-    "quality_for_bitrate", "steps_for", "stream_size",
+    "RateKeeper", "quality_for_bitrate", "steps_for", "stream_size",
 ]

@@ -6,9 +6,10 @@ import sys
 
 from facedeform.codec.regions import RULES
 from facedeform.common.cli import ArgumentParser, check_output, number, run_main
+from facedeform.protocol.quantise import DEFAULT_QUALITY
 from facedeform.protocol.secure import TAG_BITS
 from facedeform.sender.analysis import LAYOUT_NAMES
-from facedeform.sender.config import BITRATE, LIMITS, SendConfig, default
+from facedeform.sender.config import BITRATE, LIMITS, SPEAKER_RATE, SendConfig, default
 
 EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
@@ -72,12 +73,15 @@ def parse_args(argv=None) -> argparse.Namespace:
                            "where the face model cannot show the frame (the picture layer: what a turn, a lean or "
                            "a moving camera uncovers), the whole kept within 10 %% of the rate over any 2 s; more "
                            "kbit/s, a better picture (none below about 3 kbit/s at 256x256). Otherwise the "
-                           "finest quality level that codes the call's first second within "
-                           "it (chosen once: livelier talking later costs more)")
+                           "finest quality level that codes the call's first second within it, with the dead "
+                           "zone widened as the call goes where livelier talking costs more")
     rate.add_argument("--quality", type=number(*LIMITS["quality"], kind=int), default=default("quality"),
                       metavar="1-5",
                       help="quantiser fineness, 1 (coarse, fewest bits) to 5 (fine); each level halves the "
-                           "steps of the one below (default %(default)s)")
+                           f"steps of the one below. Default: {DEFAULT_QUALITY}, and with a --face from fd-enroll "
+                           f"(its own motion basis) a coarser level where the speaker's first second needs it to "
+                           f"stay within {SPEAKER_RATE / 1000:g} kbit/s, with a dead zone widened where the call "
+                           f"later costs more")
     p.add_argument("--dead-zone", type=number(*LIMITS["dead_zone"]), default=default("dead_zone"), metavar="STEPS",
                    help="a parameter is resent only once it is this many quantiser steps from what the "
                         f"receiver shows ({_span('dead_zone')}; default %(default)s): tracker jitter below it costs "

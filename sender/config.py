@@ -14,11 +14,15 @@ from facedeform.common.errors import InputError
 from facedeform.protocol.encoder import MAX_DEAD_ZONE
 from facedeform.protocol.framing import MAX_COUNT
 from facedeform.protocol.header import MAX_DIVISOR
-from facedeform.protocol.quantise import DEAD_ZONE, DEFAULT_QUALITY, QUALITIES
+from facedeform.protocol.quantise import DEAD_ZONE, QUALITIES
 from facedeform.protocol.secure import DEFAULT_TAG_BITS, TAG_BITS
 from facedeform.sender.analysis import LAYOUT_NAMES
 
 BITRATE = (1.0, 1e6)  # bit/s
+#: bit/s the parameters keep within by default with the speaker's own motion basis (fd-enroll): at
+#: level 3 it cost 0.94-2.47 kbit/s on the dev clips, the liveliest talkers the most; kept within
+#: this, the picture moved by at most 0.07 dB (README, expression table).
+SPEAKER_RATE = 1500.0
 #: name -> (lowest, highest) accepted value of the numeric settings (inclusive; None: unbounded).
 LIMITS: dict[str, tuple[float, float | None]] = {
     "quality": (min(QUALITIES), max(QUALITIES)),
@@ -35,7 +39,8 @@ LIMITS: dict[str, tuple[float, float | None]] = {
 class SendConfig:
     """How a call is coded.
 
-    quality: quantiser level (``protocol.quantise``); frames_per_packet: frames sent together
+    quality: quantiser level (``protocol.quantise``; None: its DEFAULT_QUALITY, and with the speaker's
+    own motion basis coarser where needed to keep within :data:`SPEAKER_RATE`); frames_per_packet: frames sent together
     (fewer framing bits, more latency); layout: one of ``sender.analysis.LAYOUT_NAMES``;
     neutral: the rest frame's index (None: chosen in the first second); smoothing: One Euro
     strength (0: off); embed_face: a personal face model given to the session (fd-enroll) is
@@ -43,7 +48,8 @@ class SendConfig:
     (``common.keys``) to seal every packet with, tags of ``tag_bits``; dead_zone: the encoder's
     dead zone in quantiser steps (0.5: plain rounding); bitrate: bit/s to aim at instead of
     ``quality`` (the finest level that codes the call's first second within it, chosen before the
-    header goes out); basis: code the principal components of the first second's motion
+    header goes out, and a dead zone widened as the call goes where it costs more: ``protocol.rate``);
+    basis: code the principal components of the first second's motion
     (``protocol.basis``) instead of each parameter; divisor: send one frame in this many, the
     receiver interpolates the others; datagrams: the packets go one per UDP datagram, made ready
     for loss and late join by ``protocol.encoder.Datagrams``; rule: the deformation rule
@@ -53,7 +59,7 @@ class SendConfig:
     misses it (sender/picture_layer.py; the parameters then aim at :func:`parameter_rate` of it).
     """
 
-    quality: int = DEFAULT_QUALITY
+    quality: int | None = None
     frames_per_packet: int = 2
     layout: str = "auto"
     neutral: int | None = None

@@ -21,16 +21,18 @@ from facedeform.protocol.encoder import COPIES
 from facedeform.protocol.secure import SecureSealer
 from facedeform.protocol.stream import (
     DEFAULT_QUALITY,
+    QUALITIES,
     Datagrams,
     Header,
     PacketEncoder,
+    RateKeeper,
     frame_bytes,
     quality_for_bitrate,
     steps_for,
     stream_size,
 )
-from facedeform.sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing
-from facedeform.sender.config import SendConfig, parameter_rate
+from facedeform.sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing, resolve_layout
+from facedeform.sender.config import SPEAKER_RATE, SendConfig, parameter_rate
 from facedeform.sender.picture_layer import PictureLayer, layer_pays
 from facedeform.sender.sources import open_source
 
@@ -143,7 +145,9 @@ class SendSession:
         self.picture: PictureLayer | None = None
         self._basis: np.ndarray | None = None
         self.sealer = None if config.key is None else SecureSealer(config.key, config.tag_bits)
-        self._configure(config.quality)
+        self._aim, self._finest = self._parameter_aim(resolve_layout(config.layout, model))
+        self._keeper: RateKeeper | None = None
+        self._configure(DEFAULT_QUALITY if config.quality is None else config.quality)
         self.frame_count = 0
         self._dump_path = dump
         self._dump: NpzAppender | None = None
@@ -164,6 +168,16 @@ class SendSession:
         2-second window 27 % over it)."""
         return self.config.picture_layer and self._face.picture is not None and self.config.divisor == 1
 
+    def _parameter_aim(self, layout: str) -> tuple[float | None, int]:
+        """(bit/s the parameters aim at, None for a fixed level; the finest level to take): their
+        share of --bitrate, or by default with the speaker's own motion basis at most SPEAKER_RATE
+        and DEFAULT_QUALITY (a finer level bought no visible change where it fitted)."""
+        bitrate = self.config.bitrate
+        if bitrate is not None:
+            return (parameter_rate(bitrate) if self._could_layer() else bitrate), max(QUALITIES)
+        default = self.config.quality is None and layout == "personal"
+        return (SPEAKER_RATE if default else None), DEFAULT_QUALITY
+
     def _picture_layer(self, bitrate: float) -> bool:
         """Whether this call at ``bitrate`` bit/s sends a picture layer."""
         picture = self._face.picture
@@ -183,19 +197,19 @@ class SendSession:
         """Lists of packets: the header once a face is known (a clip without one sends nothing),
         then what each frame completes, then the end mark."""
         results = self.analyser.run(self.source.frames())
-        bitrate = self.config.bitrate
-        if bitrate is not None or self.config.basis:  # the analyser holds the first second anyway
+        bitrate, aim = self.config.bitrate, self._aim
+        if aim is not None or self.config.basis:  # the analyser holds the first second anyway
             fps = self.source.fps
             first = list(islice(results, first_second(fps)))
             sample = first_frames(fps, first)
             if self.config.basis:
                 self._basis = first_basis(self.analyser.names, fps, sample)
             quality = self.header.quality
-            if first and bitrate is not None:
-                aim = parameter_rate(bitrate) if self._could_layer() else bitrate
+            if first and aim is not None:
                 quality = quality_for_bitrate(self._header, sample, aim, self.config.frames_per_packet,
                                               self.config.dead_zone, 0 if self.sealer is None else self.sealer.overhead,
-                                              COPIES if self.config.datagrams else None)
+                                              COPIES if self.config.datagrams else None, self._finest)
+                self._keeper = RateKeeper(aim, fps, self.config.dead_zone)
             self._configure(quality)
             if bitrate is not None and self._picture_layer(bitrate):
                 self.picture = PictureLayer(self._face, self.header, bitrate, self.sealed, self.config.datagrams)
@@ -213,6 +227,8 @@ class SendSession:
                     self._dump = dump_writer(self._dump_path, len(self.header.names))
                 self._dump.add(**dump_row(result))
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
+            if self._keeper is not None:
+                self.encoder.dead_zone = self._keeper.step(8 * stream_size(packets, self.sealed))
             drawn_from = self.encoder.reconstruction  # what the receiver decodes of this frame
             if self.picture is not None and result.frame is not None and drawn_from is not None:
                 packets = self._seal(self.picture.step(seq, result.frame, drawn_from, self.encoder, packets)) + packets

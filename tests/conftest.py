@@ -6,7 +6,14 @@ Tests that take more than a few seconds are marked ``slow`` (``pytest -m "not sl
 import numpy as np
 import pytest
 
+import facedeform
 from tests.support import CLIP, SEND, run
+
+
+@pytest.fixture(scope="session")
+def face():
+    """The sample clip's speaker enrolled once (reference picture and a motion basis from 2 s)."""
+    return facedeform.enroll(str(CLIP), motion_seconds=2.0)
 
 
 @pytest.fixture(scope="session")

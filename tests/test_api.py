@@ -12,11 +12,6 @@ from facedeform.receiver.output import Y4mWriter
 from tests.support import CLIP, RECV, SEND, run
 
 
-@pytest.fixture(scope="module")
-def face():
-    return facedeform.enroll(str(CLIP), motion_seconds=2.0)
-
-
 def rgb_frames() -> list[np.ndarray]:
     capture, frames = cv2.VideoCapture(str(CLIP)), []
     while (got := capture.read())[0]:

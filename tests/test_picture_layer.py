@@ -19,11 +19,6 @@ from tests.support import CLIP
 RATE = 10.0  # kbit/s
 
 
-@pytest.fixture(scope="module")
-def face():
-    return facedeform.enroll(str(CLIP), motion_seconds=2.0)
-
-
 @contextmanager
 def sender_pictures():
     """The sender's own picture of every frame (what its picture layer reconstructs), as a list

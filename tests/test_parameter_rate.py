@@ -1,0 +1,68 @@
+"""The parameters kept to a rate: a level from the call's first second, then a dead zone that widens
+where the call costs more, and fd-send's default rate with a speaker's own motion basis."""
+
+import pytest
+
+import facedeform
+from facedeform.protocol.rate import MOVE, WIDEST, WINDOW, RateKeeper
+from facedeform.protocol.stream import Frame, StreamDecoder
+from facedeform.sender import session
+from facedeform.sender.config import SPEAKER_RATE
+from tests.support import CLIP
+
+FPS = 25.0
+
+
+def test_the_dead_zone_widens_while_the_window_costs_more_and_narrows_back():
+    keeper = RateKeeper(1000.0, FPS, narrowest=1.0)
+    zones = [keeper.step(80) for _ in range(100)]  # 2000 bit/s: twice the rate
+    assert zones[0] == pytest.approx(1.0 + MOVE) and max(zones) == zones[-1] == WIDEST
+    assert all(b >= a for a, b in zip(zones, zones[1:]))
+    zones = [keeper.step(0) for _ in range(round(WINDOW * FPS) + 100)]
+    assert zones[-1] == 1.0 and min(zones) == 1.0
+
+
+def test_the_dead_zone_holds_where_the_window_costs_between_slack_and_the_rate():
+    keeper = RateKeeper(1000.0, FPS, narrowest=1.0)
+    for _ in range(30):
+        keeper.step(80)
+    zones = [keeper.step(38) for _ in range(200)]  # 950 bit/s
+    assert zones[-1] > 1.0 and zones[-150:] == [zones[-1]] * 150
+
+
+def test_a_call_dead_zone_wider_than_widest_is_kept():
+    keeper = RateKeeper(1000.0, FPS, narrowest=3.5)
+    assert keeper.step(10_000) == 3.5 and keeper.step(0) == 3.5
+
+
+def send(**options) -> tuple[bytes, float, int]:
+    """(the stream, bit/s of what follows its header (the first chunk), the header's quality level)."""
+    chunks = list(facedeform.encode(CLIP, embed_face=False, **options))
+    decoder = StreamDecoder()
+    events = decoder.feed(b"".join(chunks)) + decoder.close()
+    header, frames = events[0], sum(isinstance(e, Frame) for e in events)
+    return b"".join(chunks), 8 * sum(map(len, chunks[1:])) * header.fps / frames, header.quality
+
+
+def test_a_rate_below_the_coarsest_level_is_kept_closer_by_the_dead_zone(face):
+    """At 0.2 kbit/s the coarsest level is chosen and still costs more; the widened dead zone
+    makes the stream smaller than the same level with the call's own."""
+    _, kept_rate, kept_level = send(face=face, bitrate=200)
+    _, fixed_rate, fixed_level = send(face=face, quality=1)
+    assert kept_level == fixed_level == 1 and fixed_rate > 200
+    assert kept_rate < 0.9 * fixed_rate
+
+
+def test_with_a_speakers_motion_basis_the_default_keeps_level_3_within_the_speaker_rate(face, monkeypatch):
+    """The sample's speaker costs less than SPEAKER_RATE at level 3: the default is level 3 exactly;
+    a speaker that costs more (here: a lower rate to keep) gets a coarser level and stays within it."""
+    default, rate, level = send(face=face)
+    assert rate <= SPEAKER_RATE and level == 3 and default == send(face=face, quality=3)[0]
+    monkeypatch.setattr(session, "SPEAKER_RATE", rate / 2)
+    _, thin, coarser = send(face=face)
+    assert coarser < 3 and thin <= rate / 2
+
+
+def test_a_quality_or_the_generic_face_keeps_a_fixed_level():
+    generic, _, level = send()
+    assert generic == send(quality=3)[0] and level == 3
