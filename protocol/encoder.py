@@ -38,7 +38,11 @@ from facedeform.protocol.quantise import DEAD_ZONE, hold_or_round
 
 MODEL_CHUNK = 1024
 PICTURE_PIECE = 1024  # bytes of a picture layer's payload per packet (and datagram)
-COPIES = 1  # earlier frames packets a datagram carries again (Datagrams): one lost datagram costs nothing
+#: Earlier frames packets a datagram carries again (Datagrams) by default: up to three lost in a row
+#: cost no frame. On four dev clips' streams with a keyframe every 0.4 s, at 5 % loss in bursts of 3
+#: datagrams, 94.3 % of frames were good with one copy, 94.7 % with two, 98.1 % with three
+#: (docs/bitstream.md, "Bursts"), for 150, 214 and 264 bits a frame.
+COPIES = 3
 HEADER_EAGER, HEADER_EVERY = 10, 30  # keyframes: the header goes again before the first 10, then every 30th
 _MAX_INDEX = 1 << 30  # quantised values beyond this are a caller's bug (NaN, wrong units)
 MAX_DEAD_ZONE = 4.0  # steps: beyond this a coarser quality level costs fewer bits for the same error

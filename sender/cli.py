@@ -39,8 +39,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "file, e.g. with -o udp://HOST:PORT); by default a file is read as fast as it is analysed")
     p.add_argument("-o", "--output", default="-", metavar="DEST",
                    help="a file, - for stdout (default), tcp://HOST:PORT (connect, waiting up to 5 s for the "
-                        "receiver, and write the stream) or udp://HOST:PORT (one packet per datagram, behind a "
-                        "copy of the one before against loss, the header repeated for receivers that join late)")
+                        "receiver, and write the stream) or udp://HOST:PORT (one packet per datagram, behind "
+                        "copies of the ones before against loss (--redundancy), the header repeated for "
+                        "receivers that join late)")
     p.add_argument("--params", choices=LAYOUT_NAMES, default=default("layout"),
                    help="auto (default): personal when the --face file carries a motion basis, else mouth; "
                         "paper: the paper's 13 parameters (jaw angle, four mouth points) and head rotation; "
@@ -101,6 +102,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                    default=default("frames_per_packet"), metavar="N",
                    help=f"frames sent together ({_span('frames_per_packet')}): fewer framing bits, N-1 frames "
                         "more latency (sent frames: times --send-every) (default %(default)s)")
+    p.add_argument("--redundancy", type=number(*LIMITS["redundancy"], kind=int), default=default("redundancy"),
+                   metavar="N",
+                   help=f"over udp://, the frames packets before it that each datagram carries again "
+                        f"({_span('redundancy')}; default %(default)s): up to N datagrams lost in a row cost no "
+                        "frame, and each copy adds about the frames' own bits again (docs/bitstream.md, Bursts)")
     p.add_argument("--key", metavar="FILE",
                    help="encrypt and authenticate every packet (face model included) with this pre-shared "
                         "key (fd-keygen; docs/security.md); also opens a --face file sealed with it")
@@ -153,7 +159,7 @@ def _run(args) -> int:
                         embed_face=not args.face_by_id, key=key, tag_bits=args.tag_bits or default("tag_bits"),
                         dead_zone=args.dead_zone, bitrate=None if args.bitrate is None else 1000 * args.bitrate,
                         basis=not args.no_basis, divisor=args.send_every,
-                        datagrams=args.output.startswith("udp://"), rule=args.rule)
+                        datagrams=args.output.startswith("udp://"), redundancy=args.redundancy, rule=args.rule)
     if face is not None and config.bitrate is not None and config.picture_layer:
         from facedeform.codec.render import WARMING_UP, warm_up
         from facedeform.common.progress import slow_step

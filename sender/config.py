@@ -11,8 +11,8 @@ from dataclasses import dataclass, fields
 from facedeform.codec.regions import DEFAULT_RULE, check_rule
 from facedeform.common.cli import describe_range, in_range
 from facedeform.common.errors import InputError
-from facedeform.protocol.encoder import MAX_DEAD_ZONE
-from facedeform.protocol.framing import MAX_COUNT
+from facedeform.protocol.encoder import COPIES, MAX_DEAD_ZONE
+from facedeform.protocol.framing import MAX_COUNT, MAX_REDUNDANCY
 from facedeform.protocol.header import MAX_DIVISOR
 from facedeform.protocol.quantise import DEAD_ZONE, QUALITIES
 from facedeform.protocol.secure import DEFAULT_TAG_BITS, TAG_BITS
@@ -32,6 +32,7 @@ LIMITS: dict[str, tuple[float, float | None]] = {
     "bitrate": BITRATE,
     "divisor": (1, MAX_DIVISOR),
     "neutral": (0, None),
+    "redundancy": (0, MAX_REDUNDANCY),
 }
 
 
@@ -52,7 +53,8 @@ class SendConfig:
     basis: code the principal components of the first second's motion
     (``protocol.basis``) instead of each parameter; divisor: send one frame in this many, the
     receiver interpolates the others; datagrams: the packets go one per UDP datagram, made ready
-    for loss and late join by ``protocol.encoder.Datagrams``; rule: the deformation rule
+    for loss and late join by ``protocol.encoder.Datagrams``, each frames datagram carrying the
+    ``redundancy`` frames packets before it again; rule: the deformation rule
     (``codec.regions.RULES``) the parameters are fitted to and the receiver deforms with, named in
     the header; picture_layer: with a ``bitrate`` and a face with a reference picture, spend what
     the parameters leave of it on the real frame as a small video where the model's picture
@@ -72,6 +74,7 @@ class SendConfig:
     basis: bool = True
     divisor: int = 1
     datagrams: bool = False
+    redundancy: int = COPIES
     rule: str = DEFAULT_RULE
     picture_layer: bool = True
 

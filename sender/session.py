@@ -17,7 +17,6 @@ from facedeform.common.limits import MAX_SIDE
 from facedeform.common.npz import NpzAppender
 from facedeform.common.stages import Source
 from facedeform.protocol.basis import principal_basis
-from facedeform.protocol.encoder import COPIES
 from facedeform.protocol.secure import SecureSealer
 from facedeform.protocol.stream import (
     DEFAULT_QUALITY,
@@ -36,7 +35,7 @@ from facedeform.sender.config import SPEAKER_RATE, SendConfig, parameter_rate
 from facedeform.sender.picture_layer import PictureLayer, layer_pays
 from facedeform.sender.sources import open_source
 
-#: Seconds between keyframes over datagrams: a burst that defeats the one copy of each packet
+#: Seconds between keyframes over datagrams: a burst that defeats the copies of each packet
 #: freezes the face until the next keyframe. On four dev clips' streams (docs/bitstream.md) a
 #: keyframe every 0.4 s instead of every second cost 13 % more bits and halved the freezes in
 #: bursts (mean 16-18 frames to 8-11, worst 25-44 to 12-20).
@@ -191,7 +190,8 @@ class SendSession:
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)
         self.encoder = PacketEncoder(self.header, self.config.frames_per_packet, self._model, self.config.dead_zone)
-        self.datagrams = Datagrams(self.encoder.header()[0], sealer=self.sealer) if self.config.datagrams else None
+        self.datagrams = Datagrams(self.encoder.header()[0], self.config.redundancy,
+                                   sealer=self.sealer) if self.config.datagrams else None
 
     def packets(self) -> Iterator[list[bytes]]:
         """Lists of packets: the header once a face is known (a clip without one sends nothing),
@@ -208,7 +208,7 @@ class SendSession:
             if first and aim is not None:
                 quality = quality_for_bitrate(self._header, sample, aim, self.config.frames_per_packet,
                                               self.config.dead_zone, 0 if self.sealer is None else self.sealer.overhead,
-                                              COPIES if self.config.datagrams else None, self._finest)
+                                              self.config.redundancy if self.config.datagrams else None, self._finest)
                 self._keeper = RateKeeper(aim, fps, self.config.dead_zone)
             self._configure(quality)
             if bitrate is not None and self._picture_layer(bitrate):

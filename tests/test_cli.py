@@ -214,7 +214,7 @@ def test_bitrate_picks_a_quality_level():
 
 
 @pytest.mark.parametrize("option", [["--dead-zone", "9"], ["--dead-zone", "0.1"], ["--bitrate", "0"],
-                                    ["--send-every", "0"], ["--send-every", "17"]])
+                                    ["--send-every", "0"], ["--send-every", "17"], ["--redundancy", "4"]])
 def test_out_of_range_rate_options_are_refused(option):
     result = run(SEND + [str(CLIP), "-o", "/dev/null", *option])
     assert_one_line_error(result, "fd-send")

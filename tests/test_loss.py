@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from facedeform.common.errors import InputError
+from facedeform.protocol.encoder import COPIES
 from facedeform.protocol.secure import SecureSealer
 from facedeform.protocol.secure_stream import SecureDatagramDecoder
 from facedeform.protocol.stream import DatagramDecoder, Datagrams, Frame, Header, PacketEncoder
@@ -109,6 +110,17 @@ def test_a_burst_of_three_freezes_the_face_at_most_twelve_frames_over_datagrams(
         kept = stream[:at] + stream[at + 3:]
         froze[interval] = longest_freeze(receive(DatagramDecoder(), kept), len(params))
     assert froze[25] > 12 and 0 < froze[keys] <= 12  # a keyframe a second froze longer
+
+
+@pytest.mark.parametrize("at", [20, 33, 47, 61])
+def test_with_fd_sends_copies_a_burst_of_three_costs_no_frame(at):
+    """The burst that froze the face with one copy: with COPIES (three) the datagram after it carries
+    the three lost packets again, and every frame is drawn exactly as the sender coded it."""
+    params = smooth_tracks()
+    stream, sent = datagrams(params, COPIES)
+    got = receive(DatagramDecoder(), stream[:at] + stream[at + 3:])
+    assert [f.seq for f in got] == list(range(len(params))) and not any(f.concealed for f in got)
+    np.testing.assert_allclose([f.params for f in got], sent, atol=1e-9)
 
 
 def test_copies_and_sealing_survive_loss_together():
