@@ -26,7 +26,18 @@ it: codec/picture.face_texture). Version 5 stores the patterns as <i1, 127 for
 1 (a pattern's largest vertex move is 1, so every coordinate fits): since the
 basis covers the whole face that halves its bytes (16.8 KB for 12 patterns),
 and the largest vertex error it adds, 1/254 of a coefficient, is a fortieth
-of a quantiser step at the default level for any coefficient up to 0.02. The face
+of a quantiser step at the default level for any coefficient up to 0.02. Version 6 keeps
+only what a receiver cannot derive, in a third of the bytes (38.5 to 14.8 KB for
+liveportrait_d12's 256x256 face)::
+
+    "FDFACE" | 6 | 0 | JSON length (u32) | JSON | LZMA (raw, ``packed`` bytes in the JSON) of:
+        vertices as <i2 (n, 3) steps of 1/VERTEX_STEPS from the generic face's
+        | uv <f4 (n, 2), unless ``uv`` is "base" | faces <u2 (m, 3), unless ``topology`` is "base"
+        | motion basis (as version 5)
+    | texture | reference picture | open mouth
+
+A vertex moves by at most 1/(2 VERTEX_STEPS) of the face's height (0.02 pixels at 512x512).
+The face
 id is the sha256 of the whole file (``sha256sum face.fdface`` prints it): what
 the stream header names is exactly what the receiver holds, bit for bit.
 
@@ -40,6 +51,7 @@ stays the plain file's, and the readers here open it given the key.
 
 import hashlib
 import json
+import lzma
 import os
 import struct
 from dataclasses import dataclass, replace
@@ -68,8 +80,10 @@ from facedeform.common.keys import derive
 from facedeform.common.limits import MAX_SIDE
 
 MAGIC = b"FDFACE"
-VERSION = 5
-READS = (1, 2, 3, 4, 5)
+VERSION = 6
+READS = (1, 2, 3, 4, 5, 6)
+#: Version 6's vertex coordinates: steps of the face's height, from the generic face's.
+VERTEX_STEPS = 8192
 #: Version 5's pattern coordinates: this many steps for 1.
 PATTERN_SCALE = 127
 MAX_FILE = 16 << 20  # the stream header's limit for an in-band model
@@ -81,6 +95,9 @@ FACE_IN_PICTURE = (0.02, 2.0)
 #: How enrolment codes the reference picture (measured on 256x256 crops: docs/picture.md).
 PICTURE_FORMAT, PICTURE_QUALITY = ".webp", 80
 SEALED = b"FDSEAL\x01"
+#: Version 6's packing: raw LZMA2 (no container: a hostile file cannot ask for a larger dictionary)
+#: with a dictionary larger than any file's mesh and basis (about 35 KB at most).
+_PACKING = [{"id": lzma.FILTER_LZMA2, "preset": 9 | lzma.PRESET_EXTREME, "dict_size": 1 << 16}]
 _PREFIX = struct.Struct("<6sBBI")
 
 
@@ -99,7 +116,7 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
     """
     texture = _encode_image(face.texture, texture_format, quality, "texture") if face.texture is not None else b""
     info: dict[str, object] = {"vertices": len(face.vertices), "faces": len(face.faces), "texture": len(texture),
-                               "meta": "base" if face.meta == _base_meta() else face.meta}
+                               "meta": "base" if face.meta == _base().meta else face.meta}
     picture = b""
     if face.picture is not None:
         image = face.picture.image
@@ -122,12 +139,23 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
         patterns = np.rint(face.motion.vectors * PATTERN_SCALE)
         motion = (np.ascontiguousarray(face.motion.vertices, dtype="<u2").tobytes()
                   + np.ascontiguousarray(patterns, dtype="<i1").tobytes())
+    base = _base()
+    steps = np.rint((face.vertices - base.vertices) * VERTEX_STEPS)
+    if np.abs(steps).max() > np.iinfo(np.int16).max:
+        raise ValueError("a face file's vertices lie within 4 face heights of the generic face's")
+    arrays = [np.ascontiguousarray(steps, dtype="<i2").tobytes()]
+    if np.array_equal(face.uv.astype("<f4"), base.uv.astype("<f4")):  # as an older file stored them
+        info["uv"] = "base"
+    else:
+        arrays.append(np.ascontiguousarray(face.uv, dtype="<f4").tobytes())
+    if np.array_equal(face.faces, base.faces):
+        info["topology"] = "base"
+    else:
+        arrays.append(np.ascontiguousarray(face.faces, dtype="<u2").tobytes())
+    packed = lzma.compress(b"".join(arrays) + motion, lzma.FORMAT_RAW, filters=_PACKING)
+    info["packed"] = len(packed)
     text = json.dumps(info, sort_keys=True, separators=(",", ":")).encode()
-    return b"".join([
-        _PREFIX.pack(MAGIC, VERSION, 0, len(text)), text,
-        np.ascontiguousarray(face.vertices, dtype="<f4").tobytes(),
-        np.ascontiguousarray(face.uv, dtype="<f4").tobytes(),
-        np.ascontiguousarray(face.faces, dtype="<u2").tobytes(), motion, texture, picture])
+    return b"".join([_PREFIX.pack(MAGIC, VERSION, 0, len(text)), text, packed, texture, picture])
 
 
 def encode_picture(rgb: np.ndarray, ext: str = PICTURE_FORMAT, quality: int = PICTURE_QUALITY) -> bytes:
@@ -189,14 +217,17 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
         n_mouth, mouth_w, mouth_h = (int(x) for x in info.get("mouth", (0, 0, 0)))
         mouth_points = np.array(info.get("mouth_points", np.zeros((0, 2))), dtype=np.float64)
         rings = None if "rings" not in info else np.array(info["rings"], dtype=np.int64)
+        n_packed = int(info["packed"]) if version >= 6 else 0
+        uv_base = version >= 6 and info.get("uv") == "base"
+        topology_base = version >= 6 and info.get("topology") == "base"
     except (ValueError, KeyError, TypeError, OverflowError, RecursionError):
         raise bad("unreadable description") from None
-    if n != N_LANDMARKS or not 0 < m <= MAX_FACES or n_tex < 0:
+    if n != N_LANDMARKS or not 0 < m <= MAX_FACES or n_tex < 0 or (topology_base and m != len(_base().faces)):
         raise bad(f"{n} vertices, {m} triangles")
     if (k, c) != (0, 0) and not (0 < k <= n and 0 < c <= MAX_COMPONENTS and over in OVER):
         raise bad(f"motion basis of {c} patterns over {k} vertices")
     if version >= 4 and meta == "base":
-        meta = _base_meta()
+        meta = _base().meta
     pos = _PREFIX.size + n_text
     pattern = "<i1" if version >= 5 else "<f2" if version == 4 else "<f4"
     n_motion = 2 * k + 3 * np.dtype(pattern).itemsize * c * k
@@ -204,15 +235,23 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
         raise bad(f"reference picture of {pic_w}x{pic_h} pixels")
     if n_mouth < 0 or (n_mouth and not (n_pic and all(0 < x <= s for x, s in ((mouth_w, pic_w), (mouth_h, pic_h))))):
         raise bad(f"open mouth of {mouth_w}x{mouth_h} pixels")
-    if len(data) != pos + 20 * n + 6 * m + n_motion + n_tex + n_pic + n_mouth:
+    widths = ((6 if version >= 6 else 12) * n, 0 if uv_base else 8 * n, 0 if topology_base else 6 * m)
+    n_raw = sum(widths) + n_motion
+    n_stored = n_packed if version >= 6 else n_raw
+    if n_stored < 0 or len(data) != pos + n_stored + n_tex + n_pic + n_mouth:
         raise bad("its length does not match its description")
-    vertices = np.frombuffer(data, "<f4", 3 * n, pos).reshape(n, 3).astype(np.float64)
-    uv = np.frombuffer(data, "<f4", 2 * n, pos + 12 * n).reshape(n, 2).astype(np.float64)
-    faces = np.frombuffer(data, "<u2", 3 * m, pos + 20 * n).reshape(m, 3).astype(np.int32)
+    raw = _unpacked(data[pos:pos + n_stored], n_raw, bad) if version >= 6 else data[pos:pos + n_raw]
+    if version >= 6:
+        vertices = _base().vertices + np.frombuffer(raw, "<i2", 3 * n).reshape(n, 3) / VERTEX_STEPS
+    else:
+        vertices = np.frombuffer(raw, "<f4", 3 * n).reshape(n, 3).astype(np.float64)
+    uv = _base().uv if uv_base else np.frombuffer(raw, "<f4", 2 * n, widths[0]).reshape(n, 2).astype(np.float64)
+    faces = _base().faces if topology_base else \
+        np.frombuffer(raw, "<u2", 3 * m, widths[0] + widths[1]).reshape(m, 3).astype(np.int32)
     if not (np.all(np.isfinite(vertices)) and np.all(np.abs(vertices) < 10) and np.all(np.isfinite(uv))
             and faces.max() < n):
         raise bad("vertex, texture coordinate or triangle out of range")
-    motion = _decode_motion(data, pos + 20 * n + 6 * m, k, c, over, pattern, bad) if k else None
+    motion = _decode_motion(raw, sum(widths), k, c, over, pattern, bad) if k else None
     end = len(data) - n_pic - n_mouth
     texture = _decode_texture(data[end - n_tex:end], bad) if n_tex else None
     face = build_face(vertices, faces, uv, meta, face_id(data), texture, origin, motion)
@@ -225,6 +264,18 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
         picture = replace(picture, mouth=_decode_image(data[end + n_pic:], (mouth_w, mouth_h), "open mouth", bad),
                           mouth_points=_mouth_points(mouth_points, face, (mouth_w, mouth_h), bad))
     return replace(face, picture=picture)
+
+
+def _unpacked(packed: bytes, size: int, bad) -> bytes:
+    """Version 6's mesh and basis: ``packed`` inflated to exactly ``size`` bytes (never more)."""
+    inflate = lzma.LZMADecompressor(lzma.FORMAT_RAW, filters=_PACKING)
+    try:
+        raw = inflate.decompress(packed, max_length=size)
+    except lzma.LZMAError:
+        raise bad("damaged mesh") from None
+    if len(raw) != size or not inflate.eof or inflate.unused_data:
+        raise bad("its mesh does not match its description")
+    return raw
 
 
 def _decode_motion(data: bytes, pos: int, k: int, c: int, over: str, pattern: str, bad) -> MotionBasis:
@@ -278,9 +329,10 @@ def _mouth_points(points: np.ndarray, face: BaseFace, size: tuple[int, int], bad
 
 
 @cache
-def _base_meta() -> dict:
-    """The generic face's feature points, regions and loops, which most face files share."""
-    return load_base_face().meta
+def _base() -> BaseFace:
+    """The generic face, whose vertices, uv, topology and feature points (most face files share
+    the last three) face files start from."""
+    return load_base_face()
 
 
 def _ring_weights(rings: np.ndarray, faces: np.ndarray, bad) -> np.ndarray:

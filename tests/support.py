@@ -5,6 +5,7 @@ markers are in conftest.py.
 """
 
 import json
+import lzma
 import selectors
 import subprocess
 import sys
@@ -16,7 +17,7 @@ import numpy as np
 import pytest
 
 from facedeform.codec.deform import PAPER_PARAMS
-from facedeform.codec.face_file import PATTERN_SCALE, personal_face, save_face_file
+from facedeform.codec.face_file import _PACKING, PATTERN_SCALE, VERTEX_STEPS, personal_face, save_face_file
 from facedeform.codec.face_model import ReferencePicture, load_base_face, mouth_vertices
 from facedeform.codec.picture import Placement
 from facedeform.protocol.stream import Header, PacketEncoder, StreamDecoder, StreamEncoder, steps_for
@@ -171,18 +172,28 @@ def a_person(seed=0):
     return neutral, texture
 
 def as_version(data: bytes, version: int) -> bytes:
-    """A current face file rewritten as an older version (1-4) would have held it: the motion basis's
-    patterns as <f2 in version 4; before it the feature points written out, the patterns as <f4, no ring
-    weights; before 3, no picture; before 2, no motion basis."""
+    """A current face file rewritten as an older version (1-5) would have held it: vertices, uv and
+    triangles written out in full before version 6; the motion basis's patterns as <f2 in version 4;
+    before it the feature points written out, the patterns as <f4, no ring weights; before 3, no
+    picture; before 2, no motion basis."""
     n = int.from_bytes(data[8:12], "little")
     info = json.loads(data[12:12 + n])
-    pos = 12 + n
-    mesh = data[pos:pos + 20 * info["vertices"] + 6 * info["faces"]]
-    pos += len(mesh)
     k, c, _ = info.get("motion", (0, 0, ""))
-    patterns = np.frombuffer(data, "<i1", 3 * c * k, pos + 2 * k) / PATTERN_SCALE
-    motion = data[pos:pos + 2 * k] + patterns.astype("<f2" if version == 4 else "<f4").tobytes()
-    images = data[pos + 2 * k + 3 * c * k:]
+    packed = info.pop("packed")
+    raw = lzma.decompress(data[12 + n:12 + n + packed], lzma.FORMAT_RAW, filters=_PACKING)
+    vertices = BASE.vertices + np.frombuffer(raw, "<i2", 3 * info["vertices"]).reshape(-1, 3) / VERTEX_STEPS
+    at = 6 * info["vertices"]
+    uv = BASE.uv if info.pop("uv", None) == "base" else np.frombuffer(raw, "<f4", 2 * info["vertices"], at)
+    at += 0 if uv is BASE.uv else 8 * info["vertices"]
+    faces = BASE.faces if info.pop("topology", None) == "base" else np.frombuffer(raw, "<u2", 3 * info["faces"], at)
+    at += 0 if faces is BASE.faces else 6 * info["faces"]
+    mesh = b"".join(np.ascontiguousarray(a, dtype=t).tobytes() for a, t in ((vertices, "<f4"), (uv, "<f4"),
+                                                                            (faces, "<u2")))
+    patterns = np.frombuffer(raw, "<i1", 3 * c * k, at + 2 * k)
+    if version < 5:
+        patterns = (patterns / PATTERN_SCALE).astype("<f2" if version == 4 else "<f4")
+    motion = raw[at:at + 2 * k] + patterns.tobytes()
+    images = data[12 + n + packed:]
     if version < 4:
         if info["meta"] == "base":
             info["meta"] = BASE.meta

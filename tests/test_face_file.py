@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from facedeform.codec.deform import PAPER_PARAMS, Deformer
-from facedeform.codec.face_file import Face, decode_face, encode_face, personal_face, save_face_file
+from facedeform.codec.face_file import VERTEX_STEPS, Face, decode_face, encode_face, personal_face, save_face_file
 from facedeform.codec.picture import Placement
 from facedeform.common.errors import InputError
 from tests.support import BASE, a_person, a_picture, a_picture_with_a_mouth, as_version, with_info
@@ -40,8 +40,9 @@ def test_vertices_are_normalised_like_the_base_face():
     neutral, _ = a_person()
     face = decode_face(personal_face(neutral))
     lo, hi = face.vertices.min(axis=0), face.vertices.max(axis=0)
-    np.testing.assert_allclose(face.vertices[10, 1] - face.vertices[152, 1], 1.0, atol=1e-6)
-    np.testing.assert_allclose((lo + hi) / 2, 0.0, atol=1e-6)
+    step = 1 / VERTEX_STEPS  # what the file keeps of a coordinate
+    np.testing.assert_allclose(face.vertices[10, 1] - face.vertices[152, 1], 1.0, atol=step)
+    np.testing.assert_allclose((lo + hi) / 2, 0.0, atol=step)
     assert not np.allclose(face.vertices, BASE.vertices, atol=1e-3)
     assert face.texture is None
 
@@ -111,10 +112,10 @@ def test_files_of_older_versions_are_still_read():
     person = decode_face(personal_face(neutral, texture, motion=motion, picture=a_picture()))
     data = encode_face(replace(person, picture=replace(person.picture, ring_weights=np.full(144, 0.5))))
     now = decode_face(data)
-    for version in (1, 2, 3, 4):
+    for version in (1, 2, 3, 4, 5):
         kept = data if version > 1 else personal_face(neutral, texture)
         old = decode_face(as_version(kept, version))
-        np.testing.assert_array_equal(old.vertices, now.vertices)
+        np.testing.assert_allclose(old.vertices, now.vertices, atol=1e-6)  # as <f4 held them
         assert old.meta == BASE.meta
         assert old.picture is None if version < 3 else (old.picture.ring_weights is None) == (version == 3)
         np.testing.assert_array_equal(old.texture, decode_face(kept).texture)
@@ -218,3 +219,67 @@ def test_hostile_open_mouth_fields_are_refused_in_one_line(changes, message):
     with pytest.raises(InputError, match=message) as info:
         decode_face(with_info(data, **changes), "me.fdface")
     assert "\n" not in str(info.value)
+
+
+def test_version_6_keeps_only_what_a_receiver_cannot_derive():
+    """The generic topology and uv are named, not stored; the vertices are steps from the generic
+    face's, within half a step of the fitted ones; the rest is packed."""
+    from facedeform.codec.face_model import normalise
+
+    neutral, _ = a_person()
+    data = personal_face(neutral, None, picture=a_picture())
+    info = json.loads(data[12:12 + int.from_bytes(data[8:12], "little")])
+    assert info["uv"] == info["topology"] == "base"
+    assert len(as_version(data, 5)) - len(data) > 10_000  # uv, triangles and float vertices
+    face = decode_face(data)
+    np.testing.assert_array_equal(face.faces, BASE.faces)
+    np.testing.assert_array_equal(face.uv, BASE.uv)
+    assert np.abs(face.vertices - normalise(neutral)).max() <= 0.5 / VERTEX_STEPS + 1e-12
+    lossless = encode_face(face, picture_format=".png")
+    assert encode_face(decode_face(lossless), picture_format=".png") == lossless  # what it stores, exactly
+
+
+def test_a_face_of_its_own_topology_and_uv_stores_them():
+    neutral, texture = a_person()
+    face = decode_face(personal_face(neutral, texture))
+    own = replace(face, uv=face.uv * 0.5, faces=face.faces[:, ::-1].copy())
+    again = decode_face(encode_face(own))
+    np.testing.assert_array_equal(again.faces, own.faces)
+    np.testing.assert_allclose(again.uv, own.uv, atol=1e-7)
+
+
+def _packed_span(data: bytes) -> tuple[int, int]:
+    n = int.from_bytes(data[8:12], "little")
+    return 12 + n, json.loads(data[12:12 + n])["packed"]
+
+
+@pytest.mark.parametrize("mangle, message", [
+    (lambda d, at, size: d[:at + size // 2] + bytes([d[at + size // 2] ^ 0x55]) + d[at + size // 2 + 1:],
+     "(damaged mesh|mesh does not match|out of range)"),
+    (lambda d, at, size: with_info(d, packed=size + 5), "length does not match"),
+    (lambda d, at, size: with_info(d, packed=-1), "length does not match"),
+    (lambda d, at, size: with_info(d, topology="base", faces=5), "triangles"),
+    (lambda d, at, size: with_info(d, uv="own"), "mesh does not match"),
+])
+def test_a_damaged_or_hostile_packed_mesh_is_one_line(mangle, message):
+    neutral, texture = a_person()
+    data = personal_face(neutral, texture)
+    with pytest.raises(InputError, match=message) as info:
+        decode_face(mangle(data, *_packed_span(data)), "me.fdface")
+    assert "\n" not in str(info.value)
+
+
+def test_a_packed_mesh_is_never_inflated_past_its_declared_size():
+    """A small packed section of zeros that would inflate to megabytes stops at the declared size."""
+    import lzma
+
+    from facedeform.codec.face_file import _PACKING
+
+    neutral, texture = a_person()
+    data = personal_face(neutral, texture)
+    at, size = _packed_span(data)
+    bomb = lzma.compress(bytes(64 << 20), lzma.FORMAT_RAW, filters=_PACKING)
+    assert len(bomb) < 20_000
+    hostile = with_info(data[:at] + bomb + data[at + size:], packed=len(bomb))
+    with pytest.raises(InputError, match="mesh does not match"):
+        decode_face(hostile)

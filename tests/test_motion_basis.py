@@ -1,6 +1,8 @@
 """The personal motion basis: learning, the face file, the deformation, the sender's fit and the CLIs."""
 
 import dataclasses
+import json
+import lzma
 import subprocess
 import sys
 
@@ -8,7 +10,7 @@ import numpy as np
 import pytest
 
 from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
-from facedeform.codec.face_file import Face, decode_face, encode_face
+from facedeform.codec.face_file import _PACKING, Face, decode_face, encode_face
 from facedeform.codec.face_model import load_base_face
 from facedeform.codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS, MotionBasis, learn_basis
 from facedeform.codec.upper_face import LID_PARAMS
@@ -16,7 +18,7 @@ from facedeform.common.errors import InputError
 from facedeform.protocol.quantise import DEAD_ZONE
 from facedeform.sender.fit import ModelFit
 from facedeform.sender.motion import FRAMES_PER_PATTERN, learn_motion
-from tests.support import CLIP, ROOT, as_version, coded_error
+from tests.support import CLIP, ROOT, as_version, coded_error, with_info
 
 RNG = np.random.default_rng(7)
 
@@ -67,12 +69,22 @@ def test_face_file_carries_the_basis_and_old_files_still_read():
     assert decode_face(as_version(plain, 1)).motion is None  # version 1 had no motion section
 
 
+def _damaged(raw: bytes) -> bytes:
+    """``raw`` with the basis's first vertex index (100, beside 101) made 9999."""
+    start = raw.index(np.asarray([100, 101], "<u2").tobytes())
+    return raw[:start] + np.asarray([9999], "<u2").tobytes() + raw[start + 2:]
+
+
 def test_a_damaged_basis_is_refused():
-    data = bytearray(encode_face(_face_with_basis()))
-    start = data.index(np.asarray([100, 101], "<u2").tobytes())
-    data[start:start + 2] = np.asarray([9999], "<u2").tobytes()
+    data = encode_face(_face_with_basis())
     with pytest.raises(InputError, match="motion basis"):
-        decode_face(bytes(data))
+        decode_face(_damaged(as_version(data, 5)))
+    n = int.from_bytes(data[8:12], "little")
+    at, size = 12 + n, json.loads(data[12:12 + n])["packed"]
+    packed = lzma.compress(_damaged(lzma.decompress(data[at:at + size], lzma.FORMAT_RAW, filters=_PACKING)),
+                           lzma.FORMAT_RAW, filters=_PACKING)
+    with pytest.raises(InputError, match="motion basis"):
+        decode_face(with_info(data[:at] + packed + data[at + size:], packed=len(packed)))
 
 
 def test_coefficients_move_exactly_the_basis_vertices():
