@@ -203,6 +203,12 @@ class Datagrams:
         self._every, self._eager = header_every, eager
         self._recent: list[bytes] = []  # frames packets since the last keyframe, the newest last
         self._keys = 0
+        self.repeated = 0  # bytes of the header's repeats so far
+
+    def repeat_rate(self, key_seconds: float) -> float:
+        """bit/s the header's repeats cost once the first ``eager`` keyframes (``key_seconds`` apart)
+        are past (their sealing's few bytes aside)."""
+        return 8 * len(self._header) / (self._every * key_seconds) if self._every else 0.0
 
     def add(self, packets: list[bytes]) -> list[bytes]:
         """Datagrams for one step of the encoder (its header, a frame's packets or its end)."""
@@ -215,7 +221,9 @@ class Datagrams:
             if kind == KEY:
                 k, self._keys = self._keys, self._keys + 1
                 if k and (k <= self._eager or (self._every and k % self._every == 0)):
-                    out += self._seal([self._header], preamble=True)
+                    repeat = self._seal([self._header], preamble=True)
+                    self.repeated += sum(map(len, repeat))
+                    out += repeat
             copies = self._recent[-self._copies:] if self._copies else []
             while copies and sum(map(len, copies)) + len(packet) > MAX_BODY:
                 copies = copies[1:]

@@ -206,6 +206,9 @@ class SendSession:
                 self._basis = first_basis(self.analyser.names, fps, sample)
             quality = self.header.quality
             if first and aim is not None:
+                if self.datagrams is not None:  # the header's repeats for late joiners come out of it too
+                    key_seconds = self.header.key_interval * self.header.divisor / fps
+                    aim = max(0.0, aim - self.datagrams.repeat_rate(key_seconds))
                 quality = quality_for_bitrate(self._header, sample, aim, self.config.frames_per_packet,
                                               self.config.dead_zone, 0 if self.sealer is None else self.sealer.overhead,
                                               self.config.redundancy if self.config.datagrams else None, self._finest)
@@ -226,9 +229,11 @@ class SendSession:
                 if self._dump is None:
                     self._dump = dump_writer(self._dump_path, len(self.header.names))
                 self._dump.add(**dump_row(result))
+            repeated = 0 if self.datagrams is None else self.datagrams.repeated
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
-            if self._keeper is not None:
-                self.encoder.dead_zone = self._keeper.step(8 * stream_size(packets, self.sealed))
+            if self._keeper is not None:  # on the frames' bits: the repeats' share was taken off its aim
+                repeated = 0 if self.datagrams is None else self.datagrams.repeated - repeated
+                self.encoder.dead_zone = self._keeper.step(8 * (stream_size(packets, self.sealed) - repeated))
             drawn_from = self.encoder.reconstruction  # what the receiver decodes of this frame
             if self.picture is not None and result.frame is not None and drawn_from is not None:
                 packets = self._seal(self.picture.step(seq, result.frame, drawn_from, self.encoder, packets)) + packets
