@@ -43,6 +43,12 @@ BLOCK = 32  # pixels of the picture per model-or-video choice (16: four to seven
 #: SVT-AV1's speed preset: slower ones (8, 6) changed PSNR by -0.2 to +0.5 dB on two moving clips
 #: at 4 and 10 kbit/s, and the sender runs at 50 frames/s with 10.
 PRESET = "10"
+#: SVT-AV1's real-time mode: without it low-delay CBR forces two hierarchical levels, every fourth
+#: frame several times the others' bits (sadtalker_WDA_KatieHill at 30 kbit/s: 500-1000 bytes
+#: against 40-150), and the layer, which sends a frame only when the rate has room, skipped the
+#: frames after each. With it the frames are even, and on seven dev clips the whole picture gained
+#: 0.03-0.46 dB at 4 kbit/s, 0.15-0.42 at 10 and 0.37-0.63 at 30 (docs/picture_layer.md).
+RTC = 1
 _TEMPORAL_DELIMITER = b"\x12\x00"  # every temporal unit's first OBU: dropped on the wire
 _CHANGE = (20, 1)  # starting counts of a block's change: most blocks keep their choice
 KEY, BLOCKS_ONLY, COUNTER = 1, 2, 64
@@ -59,7 +65,7 @@ def video_size(picture_size: tuple[int, int], side: float) -> tuple[int, int]:
 
 
 class VideoEncoder:
-    """SVT-AV1 in its low-delay mode: each frame in gives its packet at once (no lookahead), at
+    """SVT-AV1 in its low-delay real-time mode: each frame in gives its packet at once (no lookahead), at
     ``bitrate`` bit/s over frames ``fps`` a second (the rate the encoder's own control aims at)."""
 
     def __init__(self, size: tuple[int, int], bitrate: float, fps: float) -> None:
@@ -72,7 +78,7 @@ class VideoEncoder:
         rate = Fraction(fps).limit_denominator(1001)
         codec.time_base, codec.framerate = 1 / rate, rate
         codec.bit_rate = max(1000, int(bitrate))
-        codec.options = {"preset": PRESET, "svtav1-params": "pred-struct=1:keyint=0:scd=0:lookahead=0:rc=2"}
+        codec.options = {"preset": PRESET, "svtav1-params": f"pred-struct=1:keyint=0:scd=0:lookahead=0:rc=2:rtc={RTC}"}
         codec.open()
         self._codec, self._count, self.size = codec, 0, size
 
