@@ -50,7 +50,7 @@ def run(clip, face, kbps: float | None) -> dict:
     bits = np.array(per_frame, dtype=np.float64)
     psnr = psnr_rgb(clip.frames, drawn)
     stats = session.stats()
-    return {"clip": clip.name, "setting": "q3" if kbps is None else f"{kbps:g}k",
+    return {"clip": clip.name, "setting": "default" if kbps is None else f"{kbps:g}k",
             "kbit_per_s": float(bits.sum() * clip.fps / n / 1000),
             "window_ratio": None if kbps is None or len(bits) < window else
             float(np.convolve(bits, np.ones(window), "valid").max() / (1000 * kbps * WINDOW)),

@@ -160,27 +160,23 @@ class SendSession:
         """Packets are sealed (opaque): on a byte stream each needs its sync byte."""
         return self.sealer is not None
 
-    def _could_layer(self) -> bool:
-        """Whether this call could send a picture layer: then the parameters aim at their share of
-        --bitrate (sender.config.parameter_rate) even where the layer does not pay, since their
-        level, chosen once, overshoots in bursts (at 1.5 kbit/s aiming at the whole rate put a
-        2-second window 27 % over it)."""
-        return self.config.picture_layer and self._face.picture is not None and self.config.divisor == 1
-
     def _parameter_aim(self, layout: str) -> tuple[float | None, int]:
         """(bit/s the parameters aim at, None for a fixed level; the finest level to take): their
-        share of --bitrate, or by default with the speaker's own motion basis at most SPEAKER_RATE
-        and DEFAULT_QUALITY (a finer level bought no visible change where it fitted)."""
+        share of --bitrate where a picture layer runs, all of it where none does, or by default with
+        the speaker's own motion basis at most SPEAKER_RATE and DEFAULT_QUALITY (a finer level
+        bought no visible change where it fitted)."""
         bitrate = self.config.bitrate
         if bitrate is not None:
-            return (parameter_rate(bitrate) if self._could_layer() else bitrate), max(QUALITIES)
+            return (parameter_rate(bitrate) if self._picture_layer(bitrate) else bitrate), max(QUALITIES)
         default = self.config.quality is None and layout == "personal"
         return (SPEAKER_RATE if default else None), DEFAULT_QUALITY
 
     def _picture_layer(self, bitrate: float) -> bool:
-        """Whether this call at ``bitrate`` bit/s sends a picture layer."""
+        """Whether this call at ``bitrate`` bit/s sends a picture layer: a face with a reference
+        picture, every frame sent, and a rate at which a layer pays (sender.picture_layer.layer_pays)."""
         picture = self._face.picture
-        return self._could_layer() and picture is not None and layer_pays(bitrate, picture.image.shape[1::-1])
+        return (self.config.picture_layer and picture is not None and self.config.divisor == 1
+                and layer_pays(bitrate, picture.image.shape[1::-1]))
 
     def _header(self, quality: int) -> Header:
         return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model),

@@ -66,3 +66,11 @@ def test_with_a_speakers_motion_basis_the_default_keeps_level_3_within_the_speak
 def test_a_quality_or_the_generic_face_keeps_a_fixed_level():
     generic, _, level = send()
     assert generic == send(quality=3)[0] and level == 3
+
+
+def test_where_no_picture_layer_runs_the_parameters_aim_at_the_whole_rate(face):
+    """At 1.5 kbit/s a layer does not pay: the stream is the same as with the layer off, the
+    parameters keeping all of the rate (no share held back for a layer that never comes)."""
+    thin, rate, _ = send(face=face, bitrate=1500)
+    assert thin == send(face=face, bitrate=1500, picture_layer=False)[0]
+    assert rate <= 1500
