@@ -40,6 +40,11 @@ from facedeform.sender.sources import open_source
 #: keyframe every 0.4 s instead of every second cost 13 % more bits and halved the freezes in
 #: bursts (mean 16-18 frames to 8-11, worst 25-44 to 12-20).
 DATAGRAM_KEYS = 0.4
+#: Where the parameters keep all of a --bitrate, their level must code the first second within this
+#: share of it: the rate keeper's dead zone could not bring back a level finer than the rest of a call
+#: affords before a short call ended (lipnet's 3-second clip at 1.5 kbit/s took level 4 from its first
+#: second, and its first 2 s cost 1.165 times the rate).
+LEVEL_SHARE = 0.9
 
 
 def stream_header(names: tuple[str, ...], fps: float, face_id: str, quality: int = DEFAULT_QUALITY,
@@ -144,7 +149,7 @@ class SendSession:
         self.picture: PictureLayer | None = None
         self._basis: np.ndarray | None = None
         self.sealer = None if config.key is None else SecureSealer(config.key, config.tag_bits)
-        self._aim, self._finest = self._parameter_aim(resolve_layout(config.layout, model))
+        self._aim, self._finest, self._level_share = self._parameter_aim(resolve_layout(config.layout, model))
         self._keeper: RateKeeper | None = None
         self._configure(DEFAULT_QUALITY if config.quality is None else config.quality)
         self.frame_count = 0
@@ -160,16 +165,19 @@ class SendSession:
         """Packets are sealed (opaque): on a byte stream each needs its sync byte."""
         return self.sealer is not None
 
-    def _parameter_aim(self, layout: str) -> tuple[float | None, int]:
-        """(bit/s the parameters aim at, None for a fixed level; the finest level to take): their
-        share of --bitrate where a picture layer runs, all of it where none does, or by default with
-        the speaker's own motion basis at most SPEAKER_RATE and DEFAULT_QUALITY (a finer level
-        bought no visible change where it fitted)."""
+    def _parameter_aim(self, layout: str) -> tuple[float | None, int, float]:
+        """(bit/s the parameters aim at, None for a fixed level; the finest level to take; the share of
+        the aim the level's sample must fit): their share of --bitrate where a picture layer runs, all
+        of it where none does (the level chosen within LEVEL_SHARE of it), or by default with the
+        speaker's own motion basis at most SPEAKER_RATE and DEFAULT_QUALITY (a finer level bought no
+        visible change where it fitted)."""
         bitrate = self.config.bitrate
         if bitrate is not None:
-            return (parameter_rate(bitrate) if self._picture_layer(bitrate) else bitrate), max(QUALITIES)
+            if self._picture_layer(bitrate):
+                return parameter_rate(bitrate), max(QUALITIES), 1.0
+            return bitrate, max(QUALITIES), LEVEL_SHARE
         default = self.config.quality is None and layout == "personal"
-        return (SPEAKER_RATE if default else None), DEFAULT_QUALITY
+        return (SPEAKER_RATE if default else None), DEFAULT_QUALITY, 1.0
 
     def _picture_layer(self, bitrate: float) -> bool:
         """Whether this call at ``bitrate`` bit/s sends a picture layer: a face with a reference
@@ -205,8 +213,9 @@ class SendSession:
                 if self.datagrams is not None:  # the header's repeats for late joiners come out of it too
                     key_seconds = self.header.key_interval * self.header.divisor / fps
                     aim = max(0.0, aim - self.datagrams.repeat_rate(key_seconds))
-                quality = quality_for_bitrate(self._header, sample, aim, self.config.frames_per_packet,
-                                              self.config.dead_zone, 0 if self.sealer is None else self.sealer.overhead,
+                quality = quality_for_bitrate(self._header, sample, self._level_share * aim,
+                                              self.config.frames_per_packet, self.config.dead_zone,
+                                              0 if self.sealer is None else self.sealer.overhead,
                                               self.config.redundancy if self.config.datagrams else None, self._finest)
                 self._keeper = RateKeeper(aim, fps, self.config.dead_zone)
             self._configure(quality)
