@@ -145,10 +145,15 @@ class SendSession:
         self._face_id = model.content_id
         self._face = model
         self._model = face.data if face is not None and config.embed_face else b""
-        #: the picture layer (with a bitrate, a face with a reference picture, every frame sent), once the header is
+        #: the picture layer where the call sends one (``_layered``), once the header is
         self.picture: PictureLayer | None = None
         self._basis: np.ndarray | None = None
         self.sealer = None if config.key is None else SecureSealer(config.key, config.tag_bits)
+        reference = model.picture
+        #: The call sends a picture layer: a --bitrate at which one pays (sender.picture_layer.layer_pays),
+        #: a face with a reference picture, every frame sent.
+        self._layered = (config.bitrate is not None and config.picture_layer and reference is not None
+                         and config.divisor == 1 and layer_pays(config.bitrate, reference.image.shape[1::-1]))
         self._aim, self._finest, self._level_share = self._parameter_aim(resolve_layout(config.layout, model))
         self._keeper: RateKeeper | None = None
         self._configure(DEFAULT_QUALITY if config.quality is None else config.quality)
@@ -173,18 +178,11 @@ class SendSession:
         visible change where it fitted)."""
         bitrate = self.config.bitrate
         if bitrate is not None:
-            if self._picture_layer(bitrate):
+            if self._layered:
                 return parameter_rate(bitrate), max(QUALITIES), 1.0
             return bitrate, max(QUALITIES), LEVEL_SHARE
         default = self.config.quality is None and layout == "personal"
         return (SPEAKER_RATE if default else None), DEFAULT_QUALITY, 1.0
-
-    def _picture_layer(self, bitrate: float) -> bool:
-        """Whether this call at ``bitrate`` bit/s sends a picture layer: a face with a reference
-        picture, every frame sent, and a rate at which a layer pays (sender.picture_layer.layer_pays)."""
-        picture = self._face.picture
-        return (self.config.picture_layer and picture is not None and self.config.divisor == 1
-                and layer_pays(bitrate, picture.image.shape[1::-1]))
 
     def _header(self, quality: int) -> Header:
         return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model),
@@ -201,7 +199,7 @@ class SendSession:
         """Lists of packets: the header once a face is known (a clip without one sends nothing),
         then what each frame completes, then the end mark."""
         results = self.analyser.run(self.source.frames())
-        bitrate, aim = self.config.bitrate, self._aim
+        aim = self._aim
         if aim is not None or self.config.basis:  # the analyser holds the first second anyway
             fps = self.source.fps
             first = list(islice(results, first_second(fps)))
@@ -219,8 +217,9 @@ class SendSession:
                                               self.config.redundancy if self.config.datagrams else None, self._finest)
                 self._keeper = RateKeeper(aim, fps, self.config.dead_zone)
             self._configure(quality)
-            if bitrate is not None and self._picture_layer(bitrate):
-                self.picture = PictureLayer(self._face, self.header, bitrate, self.sealed, self.config.datagrams)
+            if self._layered:
+                self.picture = PictureLayer(self._face, self.header, self.config.bitrate, self.sealed,
+                                            self.config.datagrams)
             results = chain(first, results)
         for seq, result in enumerate(results):
             if seq == 0:
@@ -234,11 +233,11 @@ class SendSession:
                 if self._dump is None:
                     self._dump = dump_writer(self._dump_path, len(self.header.names))
                 self._dump.add(**dump_row(result))
-            repeated = 0 if self.datagrams is None else self.datagrams.repeated
+            repeats_before = 0 if self.datagrams is None else self.datagrams.repeated
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
             if self._keeper is not None:  # on the frames' bits: the repeats' share was taken off its aim
-                repeated = 0 if self.datagrams is None else self.datagrams.repeated - repeated
-                self.encoder.dead_zone = self._keeper.step(8 * (stream_size(packets, self.sealed) - repeated))
+                repeats = 0 if self.datagrams is None else self.datagrams.repeated - repeats_before
+                self.encoder.dead_zone = self._keeper.step(8 * (stream_size(packets, self.sealed) - repeats))
             drawn_from = self.encoder.reconstruction  # what the receiver decodes of this frame
             if self.picture is not None and result.frame is not None and drawn_from is not None:
                 packets = self._seal(self.picture.step(seq, result.frame, drawn_from, self.encoder, packets)) + packets
