@@ -135,6 +135,10 @@ class Renderer:
         # below this n.h the highlight adds under 1e-5 (a 1/65536 encoder step)
         self._spec_cut = (1e-5 / specular) ** (1.0 / shininess) if specular > 0.0 else 2.0
         self._light_dir, self._light_rgb = _lights(tuple(lights))
+        self._flat = not lights  # ambient light alone: no normals to interpolate, nothing to light
+        # a texture drawn as it is (a picture's own light, one sample a pixel) is sampled in its own
+        # sRGB encoding, as an image warp does: a quarter of the memory, no conversions
+        self._own = self._flat and ambient == 1.0 and supersample == 1
         self._background = self._parse_background(background)
         self._uv, self._texture = self._parse_texture(uv, texture)
         mouth, eyes = (self._mask(m, name) for m, name in ((mouth_faces, "mouth_faces"),
@@ -172,7 +176,7 @@ class Renderer:
         h, w = image.shape[:2]
         if not (0 <= x and 0 <= y and y + h <= self._texture.shape[0] and x + w <= self._texture.shape[1]):
             raise ValueError(f"a {w}x{h} patch at ({x}, {y}) is outside the texture")
-        self._texture[y:y + h, x:x + w] = _DECODE[image]
+        self._texture[y:y + h, x:x + w] = image if self._own else _DECODE[image]
 
     def set_background(self, background) -> None:
         """Draw over ``background`` from the next frame on: as the constructor's (a moving camera's picture)."""
@@ -195,7 +199,7 @@ class Renderer:
         if (uv is None) != (texture is None):
             raise ValueError("uv and texture must be given together")
         if texture is None:
-            return np.zeros((0, 2)), np.zeros((0, 0, 3), np.float32)
+            return np.zeros((0, 2)), np.zeros((0, 0, 3), np.uint8 if self._own else np.float32)
         uv = np.asarray(uv, dtype=np.float64)
         if uv.ndim != 2 or uv.shape[1] != 2 or uv.shape[0] < self._min_vertices \
                 or not np.all(np.isfinite(uv)):
@@ -205,7 +209,7 @@ class Renderer:
         if texture.ndim != 3 or texture.shape[2] != 3 or texture.dtype != np.uint8 \
                 or texture.shape[0] == 0 or texture.shape[1] == 0:
             raise ValueError(f"texture must be (h, w, 3) uint8, got {texture.dtype} {texture.shape}")
-        return np.ascontiguousarray(uv), _DECODE[texture].astype(np.float32)
+        return np.ascontiguousarray(uv), texture.copy() if self._own else _DECODE[texture].astype(np.float32)
 
     def render(self, vertices, camera: Camera, irises=None) -> tuple[np.ndarray, np.ndarray]:
         """Draw the mesh posed at vertices: (n, 3) world positions.
@@ -242,7 +246,7 @@ class Renderer:
         image = self._background.copy()
         depth = np.full((height, width), np.inf, np.float32)
         shading = (self._ambient, self._albedo, self._light_dir, self._light_rgb, self._spec_lut,
-                   self._spec_cut)
+                   self._spec_cut, self._flat, self._own)
         view = (camera.basis(), camera.eye, 1.0 / camera.focal(sh) if persp else 0.0)
         box = draw(screen, persp, v, self._uv, self.faces, self._kind, camera.near, camera.far,
                    self._drawn, self._nearness, count, shading, view, self._texture,

@@ -159,6 +159,22 @@ def test_checkerboard_texture_at_cell_centres():
     np.testing.assert_allclose(image[np.ix_(centres, centres)], colours, atol=1)
 
 
+def test_unlit_texture_is_sampled_in_its_own_encoding():
+    """With no lights the texture is drawn as it is stored (sRGB, fixed point, no conversions):
+    within a level of the lit path's linear-light lookup on a smooth texture; a patch shows."""
+    ramp = np.linspace(20, 230, 24)
+    texture = np.stack(np.broadcast_arrays(ramp[None, :], ramp[:, None], ramp[::-1][None, :]), -1).astype(np.uint8)
+    verts, faces, uv = quad(4, 4, 60, 60)
+    own = Renderer(faces, size=(64, 64), material=FLAT, lights=(), uv=uv, texture=texture)
+    dark = DirectionalLight((0.0, 0.0, 1.0), intensity=0.0)  # lit path, adds nothing
+    lit = Renderer(faces, size=(64, 64), material=FLAT, lights=(dark,), uv=uv, texture=texture)
+    a, b = (r.render(verts, pixel_camera(64, 64))[0] for r in (own, lit))
+    assert np.abs(a.astype(int) - b).max() <= 1 and np.abs(a.astype(int) - b).mean() < 0.3
+    own.patch_texture(0, 0, np.zeros((12, 12, 3), np.uint8))  # the texture's top left quarter
+    patched = own.render(verts, pixel_camera(64, 64))[0]
+    assert patched[10:28, 10:28].max() == 0 and np.array_equal(patched[40:58, 40:58], a[40:58, 40:58])
+
+
 def test_texture_interpolation_is_perspective_correct():
     verts = np.array([[-1, -1, -2], [1, -1, -2], [1, 1, -6], [-1, 1, -6.0]])
     uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1.0]])
