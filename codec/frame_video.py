@@ -204,11 +204,17 @@ def _apart(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover - co
 
 @njit(cache=True)
 def _mix(model, up, coarse, agree, soft, out) -> None:  # pragma: no cover - compiled
-    """out = soft * model + (1 - soft) * (up + agree * (model - coarse)), rounded into 0-255."""
+    """out = soft * model + (1 - soft) * (up + agree * (model - coarse)), rounded into 0-255; the
+    model's pixel as it is where soft is 1 (the same number, most of a still picture: at 1080p with
+    four fifths of it the model's, 4.6 ms instead of 16.6)."""
     h, w = model.shape[:2]
     for y in range(h):
         for x in range(w):
             s, a = soft[y, x], agree[y, x]
+            if s == 1:
+                for c in range(3):
+                    out[y, x, c] = model[y, x, c]
+                continue
             for c in range(3):
                 m = np.float32(model[y, x, c])
                 v = s * m + (1 - s) * (up[y, x, c] + a * (m - np.float32(coarse[y, x, c]))) + 0.5
