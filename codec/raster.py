@@ -22,9 +22,11 @@ run's square roots and divisions go first, in loops of their own (which
 vectorise), out of the long dependency chain of each fragment's shading.
 
 A mesh drawn without lights and with its texture as it is (the whole picture)
-skips normals and shading, and samples the texture in its own sRGB encoding in
-fixed point (:func:`sample_own`, as an image warp does): no conversions, a
-quarter of the memory, about a quarter less time at 1080p (docs/hd.md).
+skips normals and shading, and its textured pixels are left to an image warp:
+draw writes each one's texel position into a map, and OpenCV's remap samples
+the texture there, in its own sRGB encoding (codec/render.py). A bilinear
+lookup is the fragment's whole cost, and remap's SIMD code does it in a third
+of the time Numba's scalar code takes (docs/hd.md).
 
 Shading is Blinn-Phong in linear light. Per-triangle ``kind`` selects the
 material: SKIN (lit albedo or texture), MOUTH (unlit cavity with a band of
@@ -58,6 +60,8 @@ PUPIL = (0.01, 0.01, 0.01)
 PUPIL_RATIO = 0.45  # pupil radius over iris radius
 EDGE = 0.12  # width of the iris and pupil rims, in iris radii (soft edges)
 SPEC_STEPS = 1024  # intervals of the specular table over n.h in [0, 1]
+#: A map's x for a pixel the remap leaves as drawn: far outside any texture.
+OUTSIDE = -1e6
 
 # fast math touches only shading: coverage and snapping are integer or exact
 # arithmetic; no nnan/ninf, since buffers hold inf
@@ -161,23 +165,6 @@ def sample(tex, u, v):
             w00 * tex[iy, ix, 2] + w01 * tex[iy, jx, 2] + w10 * tex[jy, ix, 2] + w11 * tex[jy, jx, 2])
 
 
-@njit(cache=True, inline="always")
-def sample_own(tex, tx, ty, image, y, x):
-    """image[y, x] = the bilinear, clamp-to-edge lookup of (h, w, 3) uint8 tex at texel (tx, ty)
-    (texel centres at whole numbers, y down), in the texture's own encoding, in fixed point
-    (1/256 texel): a picture drawn as it is."""
-    h, w = tex.shape[0], tex.shape[1]
-    fx = np.int64(min(max(tx, 0.0), w - 1.0) * 256.0)  # >= 0: truncation is floor
-    fy = np.int64(min(max(ty, 0.0), h - 1.0) * 256.0)
-    ax, ay = fx & 255, fy & 255
-    ix, iy = np.uint64(fx >> 8), np.uint64(fy >> 8)  # unsigned indices: no negative-index wrapping
-    jx, jy = min(ix + np.uint64(1), np.uint64(w - 1)), min(iy + np.uint64(1), np.uint64(h - 1))
-    for c in range(3):
-        top = np.int64(tex[iy, ix, c]) * (256 - ax) + np.int64(tex[iy, jx, c]) * ax
-        bottom = np.int64(tex[jy, ix, c]) * (256 - ax) + np.int64(tex[jy, jx, c]) * ax
-        image[y, x, c] = np.uint8((top * (256 - ay) + bottom * ay + 32768) >> 16)
-
-
 @njit(cache=True, fastmath=FAST, inline="always")
 def eye_albedo(eyes, e, x, y, z):
     """Sclera / iris / pupil albedo (r, g, b) of eye e at world point (x, y, z).
@@ -247,7 +234,7 @@ def lit(inv, dots, x, cr, cg, cb, ambient, light_rgb, spec_lut, spec_cut):
 
 @njit(cache=True, fastmath=FAST, error_model="numpy")
 def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, count, shading,
-         view, tex, teeth, eyes, encode, image, depth, linear):
+         view, tex, teeth, eyes, encode, image, depth, linear, maps):
     """Draw all triangles, in index order, into a cleared frame; return the drawn box.
 
     screen: (n, 4) float64 from Camera.project (of a perspective camera if
@@ -260,30 +247,37 @@ def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, 
     equal nearness the lower triangle index wins. count: (sH, sW) int32
     counts every fragment (test aid), or shape (0, 0).
     shading: (ambient, albedo (3,), light_dir (k, 3) unit, light_rgb, spec_lut,
-    spec_cut, flat, own), see lit, with albedo the untextured skin's linear RGB, flat
-    True when there are no lights (ambient times albedo, no normals needed) and own
-    True when tex is uint8 sRGB, its samples written as they are (flat, ambient 1,
-    direct); view:
+    spec_cut, flat), see lit, with albedo the untextured skin's linear RGB and flat
+    True when there are no lights (ambient times albedo, no normals needed); view:
     (axes, eye, inv_f): Camera.basis(), Camera.eye and 1 / focal length in
     samples (0 if orthographic). tex, teeth, eyes: see sample,
     mouth and eye_albedo. encode: (65536,) uint8 linear->sRGB. Fragments go
     to image (sH, sW, 3) uint8 and depth (sH, sW) float32 if linear has shape
     (0, 0, 3), else to linear (sH, sW, 3) float32 as linear RGB, for resolve.
+    maps: (sH, sW, 2) float32 or shape (0, 0, 2): if given, tex is uint8 sRGB
+    drawn as it is, with its last column and row once more (a bilinear lookup's
+    second taps there), and its fragments are not shaded here: each one's texel
+    position (x, y down, centres at whole numbers, clamped to the texture) goes
+    to maps for a remap, every other pixel's x to OUTSIDE (remap leaves it); the
+    clear box is reset to OUTSIDE first.
     Returns (x0, y0, x1, y1), inclusive, with x0 > x1 if nothing was drawn.
     error_model="numpy": no checks for division by zero, which would keep
     loops from vectorising.
     """
     height, width = nearness.shape
+    deferred = maps.shape[0] > 0
     for y in range(clear[1], clear[3] + 1):
         nearness[y, clear[0]:clear[2] + 1] = -np.inf
-    ambient, albedo, light_dir, light_rgb, spec_lut, spec_cut, flat, own = shading
+        if deferred:
+            maps[y, clear[0]:clear[2] + 1, 0] = OUTSIDE
+    ambient, albedo, light_dir, light_rgb, spec_lut, spec_cut, flat = shading
     ray, half_dir = _view(pos, perspective, *view, light_dir, width, height)
     normals = pos[:0] if flat else vertex_normals(pos, faces)
     box_x0, box_y0, box_x1, box_y1 = width, height, -1, -1
     counting = count.shape[0] > 0
     direct = linear.shape[0] == 0
     textured = tex.shape[0] > 0
-    tw, th = np.float64(tex.shape[1]), np.float64(tex.shape[0])
+    tw, th = np.float64(tex.shape[1] - deferred), np.float64(tex.shape[0] - deferred)  # without the repeats
     half = SUBPIXEL // 2
     planes = np.zeros((POS + 3, 3))
     dots = np.zeros((len(light_rgb), 4))
@@ -336,7 +330,7 @@ def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, 
             (-screen[v0, 2], -screen[v1, 2], -screen[v2, 2])
         k0, dk1, dk2 = keys[0], (keys[1] - keys[0]) * inv_area, (keys[2] - keys[0]) * inv_area
         k = kind[t]
-        own_skin = own and textured and k == SKIN  # drawn as the texture stores it (sample_own)
+        warped = deferred and textured and k == SKIN  # left to the remap: see maps
         # the eye's position or the texture's uv need a perspective division per pixel
         attr, n_attr = (POS, 3) if k >= EYE else (UV, 2 if textured and k == SKIN else 0)
         vals = pos if k >= EYE else uv
@@ -406,12 +400,14 @@ def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, 
                 if not z > nearness[uy, ux]:
                     continue
                 nearness[uy, ux] = z
-                if own_skin:
+                if warped:
                     x = np.float64(i)
-                    sample_own(tex, (du * x + u0) * w[i] * tw - 0.5, (1.0 - (dv * x + v0) * w[i]) * th - 0.5,
-                               image, uy, ux)
+                    maps[uy, ux, 0] = min(max((du * x + u0) * w[i] * tw - 0.5, 0.0), tw - 1.0)
+                    maps[uy, ux, 1] = min(max((1.0 - (dv * x + v0) * w[i]) * th - 0.5, 0.0), th - 1.0)
                     depth[uy, ux] = 1.0 / np.float64(z) if perspective else -z
                     continue
+                if deferred:
+                    maps[uy, ux, 0] = OUTSIDE
                 if k == MOUTH:
                     cr, cg, cb = mouth(teeth, qx, py)
                 else:

@@ -14,13 +14,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from facedeform.common.limits import MAX_SIDE
 
 from .camera import Camera
 from .face_parts import eye_components, eye_discs, eye_pieces, teeth_columns
-from .raster import EYE, MOUTH, SPEC_STEPS, draw, resolve
+from .raster import EYE, MOUTH, OUTSIDE, SPEC_STEPS, draw, resolve
 
 
 def srgb_to_linear(values) -> np.ndarray:
@@ -136,9 +137,9 @@ class Renderer:
         self._spec_cut = (1e-5 / specular) ** (1.0 / shininess) if specular > 0.0 else 2.0
         self._light_dir, self._light_rgb = _lights(tuple(lights))
         self._flat = not lights  # ambient light alone: no normals to interpolate, nothing to light
-        # a texture drawn as it is (a picture's own light, one sample a pixel) is sampled in its own
-        # sRGB encoding, as an image warp does: a quarter of the memory, no conversions
-        self._own = self._flat and ambient == 1.0 and supersample == 1
+        # a texture drawn as it is (a picture's own light, one sample a pixel) is sampled by an image
+        # warp, in its own sRGB encoding (codec/raster.py, maps): a quarter of the memory, no conversions
+        self._own = self._flat and ambient == 1.0 and supersample == 1 and texture is not None
         self._background = self._parse_background(background)
         self._uv, self._texture = self._parse_texture(uv, texture)
         mouth, eyes = (self._mask(m, name) for m, name in ((mouth_faces, "mouth_faces"),
@@ -160,6 +161,7 @@ class Renderer:
         self._linear = np.zeros((*shape, 3) if supersample > 1 else (0, 0, 3), np.float32)
         self._drawn = (0, 0, -1, -1)  # the last frame's drawn box, to clear
         self._no_count = np.zeros((0, 0), np.int32)
+        self._maps = np.full((*shape, 2) if self._own else (0, 0, 2), OUTSIDE, np.float32)
 
     def _mask(self, mask, name: str) -> np.ndarray:
         if mask is None:
@@ -174,9 +176,14 @@ class Renderer:
         ((h, w, 3) uint8, inside the texture): a part that changes often (the open mouth), without
         converting the whole texture again."""
         h, w = image.shape[:2]
-        if not (0 <= x and 0 <= y and y + h <= self._texture.shape[0] and x + w <= self._texture.shape[1]):
+        height, width = self._texture.shape[0] - self._own, self._texture.shape[1] - self._own
+        if not (0 <= x and 0 <= y and y + h <= height and x + w <= width):
             raise ValueError(f"a {w}x{h} patch at ({x}, {y}) is outside the texture")
-        self._texture[y:y + h, x:x + w] = image if self._own else _DECODE[image]
+        if not self._own:
+            self._texture[y:y + h, x:x + w] = _DECODE[image]
+            return
+        self._texture[y:y + h, x:x + w] = image
+        self._texture[:, -1], self._texture[-1] = self._texture[:, -2], self._texture[-2]  # the repeats
 
     def set_background(self, background) -> None:
         """Draw over ``background`` from the next frame on: as the constructor's (a moving camera's picture)."""
@@ -209,7 +216,9 @@ class Renderer:
         if texture.ndim != 3 or texture.shape[2] != 3 or texture.dtype != np.uint8 \
                 or texture.shape[0] == 0 or texture.shape[1] == 0:
             raise ValueError(f"texture must be (h, w, 3) uint8, got {texture.dtype} {texture.shape}")
-        return np.ascontiguousarray(uv), texture.copy() if self._own else _DECODE[texture].astype(np.float32)
+        if self._own:  # the last column and row once more: a lookup's second taps there (raster.draw, maps)
+            return np.ascontiguousarray(uv), cv2.copyMakeBorder(texture, 0, 1, 0, 1, cv2.BORDER_REPLICATE)
+        return np.ascontiguousarray(uv), _DECODE[texture].astype(np.float32)
 
     def render(self, vertices, camera: Camera, irises=None) -> tuple[np.ndarray, np.ndarray]:
         """Draw the mesh posed at vertices: (n, 3) world positions.
@@ -246,14 +255,18 @@ class Renderer:
         image = self._background.copy()
         depth = np.full((height, width), np.inf, np.float32)
         shading = (self._ambient, self._albedo, self._light_dir, self._light_rgb, self._spec_lut,
-                   self._spec_cut, self._flat, self._own)
+                   self._spec_cut, self._flat)
         view = (camera.basis(), camera.eye, 1.0 / camera.focal(sh) if persp else 0.0)
         box = draw(screen, persp, v, self._uv, self.faces, self._kind, camera.near, camera.far,
                    self._drawn, self._nearness, count, shading, view, self._texture,
                    teeth_columns(screen, self._mouth_vertices, sw),
                    eye_discs(v, self.faces, *self._eye_pieces, irises), _ENCODE, image, depth,
-                   self._linear)
+                   self._linear, self._maps)
         self._drawn = box
+        if self._own and box[0] <= box[2]:
+            rows, columns = slice(box[1], box[3] + 1), slice(box[0], box[2] + 1)
+            cv2.remap(self._texture, self._maps[rows, columns], None, cv2.INTER_LINEAR, dst=image[rows, columns],
+                      borderMode=cv2.BORDER_TRANSPARENT)
         if ss > 1 and box[0] <= box[2]:
             resolve(self._nearness, self._linear, box, persp, self._background, _DECODE, _ENCODE,
                     image, depth)
@@ -271,3 +284,6 @@ def warm_up() -> None:
     triangle = np.array([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.0, 0.5, 0.0]])
     camera = Camera.orthographic(2.0, eye=(0.0, 0.0, 2.0), target=(0.0, 0.0, 0.0))
     Renderer(np.array([[0, 1, 2]]), size=(8, 8)).render(triangle, camera)
+    # and the whole picture's: a texture drawn as it is (a machine code of its own)
+    Renderer(np.array([[0, 1, 2]]), size=(8, 8), material=UNLIT, lights=(), uv=triangle[:, :2] + 0.5,
+             texture=np.zeros((2, 2, 3), np.uint8)).render(triangle, camera)
