@@ -186,7 +186,7 @@ class Deformer:
 
     def _unfolded(self, p: np.ndarray, f3_with_jaw: bool) -> np.ndarray:
         out = self.blend(p, f3_with_jaw)
-        if self._facing is not None and self._folds(out):
+        if self._folds(out):
             out = self.blend(self._scaled_back(p, f3_with_jaw), f3_with_jaw)
         return out
 
@@ -220,7 +220,7 @@ class Deformer:
     def would_fold(self, params: np.ndarray, f3_with_jaw: bool = False) -> bool:
         """Whether the refined rule's fold guard acts on params (len(EXTENDED_PARAMS),): the sender
         fits again rather than let it (sender/fit.py). Never under the paper's rule, which draws folds."""
-        return self._facing is not None and self._folds(self.blend(self._extended(params), f3_with_jaw))
+        return self._folds(self.blend(self._extended(params), f3_with_jaw))
 
     def blend(self, p: np.ndarray, f3_with_jaw: bool = False) -> np.ndarray:
         """(468, 3) vertices from params (len(EXTENDED_PARAMS),) before the fold guard and the head pose:
@@ -232,7 +232,7 @@ class Deformer:
         return out
 
     def _folds(self, vertices: np.ndarray) -> bool:
-        return bool(self._facing.folded(vertices, KEEP_FACING).any())
+        return self._facing is not None and bool(self._facing.folded(vertices, KEEP_FACING).any())
 
     def iris(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(2, 3) iris centres and (2, 3) unit gaze directions (rows: face-left, face-right eye)

@@ -98,15 +98,15 @@ class Eyelids:
         weights = [float(np.clip((c - CLOSING) / (CLOSED - CLOSING), 0.0, 1.0)) for c in closures]
         if not any(weights):
             return out
-        if self._of is not picture:
-            self._skin = _lid_skin(crop, self._masks)
+        skin = self._skin
+        if self._of is not picture or skin is None:
+            self._skin = skin = _lid_skin(crop, self._masks)
             for mask, (line, thickness) in zip(self._masks, self._lashes):
                 dark = np.percentile(crop[mask > 0], 10, axis=0)  # the lashes' colour
-                cv2.polylines(self._skin, [line], False, [float(c) for c in dark], thickness, cv2.LINE_AA,
-                              LASH_BITS)
+                cv2.polylines(skin, [line], False, [float(c) for c in dark], thickness, cv2.LINE_AA, LASH_BITS)
             self._of = picture
         blend = sum(w * soft for w, soft in zip(weights, self._soft))
-        return np.clip(np.rint(out + blend * (self._skin.astype(np.float32) - out)), 0, 255).astype(np.uint8)
+        return np.clip(np.rint(out + blend * (skin.astype(np.float32) - out)), 0, 255).astype(np.uint8)
 
 
 class _Opening:

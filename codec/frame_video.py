@@ -306,10 +306,10 @@ class VideoLayer:
         """The picture of frame ``seq`` whose model's picture is ``model``."""
         while len(self._states) > 1 and self._states[1][0] <= seq:
             self._states.popleft()
-        if not self._states or self._states[0][0] > seq or self._states[0][1] is None:
+        if not self._states or self._states[0][0] > seq:
             return model
         _, frame, chosen = self._states[0]
-        return blend(model, frame, chosen, self.picture_size)
+        return model if frame is None else blend(model, frame, chosen, self.picture_size)
 
     def _decode(self, video: bytes, key: bool) -> np.ndarray | None:
         if key or self._decoder is None:

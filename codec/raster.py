@@ -23,8 +23,9 @@ vectorise), out of the long dependency chain of each fragment's shading.
 
 A mesh drawn without lights and with its texture as it is (the whole picture)
 skips normals and shading, and its textured pixels are left to an image warp:
-draw writes each one's texel position into a map, and OpenCV's remap samples
-the texture there, in its own sRGB encoding (codec/render.py). A bilinear
+draw writes each one's texel position into a map and marks it, and OpenCV's
+remap samples the texture there, in its own sRGB encoding, for the marked
+pixels (codec/render.py). A bilinear
 lookup is the fragment's whole cost, and remap's SIMD code does it in a third
 of the time Numba's scalar code takes (docs/hd.md).
 
@@ -60,8 +61,6 @@ PUPIL = (0.01, 0.01, 0.01)
 PUPIL_RATIO = 0.45  # pupil radius over iris radius
 EDGE = 0.12  # width of the iris and pupil rims, in iris radii (soft edges)
 SPEC_STEPS = 1024  # intervals of the specular table over n.h in [0, 1]
-#: A map's x for a pixel the remap leaves as drawn: far outside any texture.
-OUTSIDE = -1e6
 
 # fast math touches only shading: coverage and snapping are integer or exact
 # arithmetic; no nnan/ninf, since buffers hold inf
@@ -234,7 +233,7 @@ def lit(inv, dots, x, cr, cg, cb, ambient, light_rgb, spec_lut, spec_cut):
 
 @njit(cache=True, fastmath=FAST, error_model="numpy")
 def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, count, shading,
-         view, tex, teeth, eyes, encode, image, depth, linear, maps):
+         view, tex, teeth, eyes, encode, image, depth, linear, maps, warped):
     """Draw all triangles, in index order, into a cleared frame; return the drawn box.
 
     screen: (n, 4) float64 from Camera.project (of a perspective camera if
@@ -254,22 +253,22 @@ def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, 
     mouth and eye_albedo. encode: (65536,) uint8 linear->sRGB. Fragments go
     to image (sH, sW, 3) uint8 and depth (sH, sW) float32 if linear has shape
     (0, 0, 3), else to linear (sH, sW, 3) float32 as linear RGB, for resolve.
-    maps: (sH, sW, 2) float32 or shape (0, 0, 2): if given, tex is uint8 sRGB
-    drawn as it is, with its last column and row once more (a bilinear lookup's
-    second taps there), and its fragments are not shaded here: each one's texel
-    position (x, y down, centres at whole numbers, clamped to the texture) goes
-    to maps for a remap, every other pixel's x to OUTSIDE (remap leaves it); the
-    clear box is reset to OUTSIDE first.
+    maps: (2, sH, sW) float32 and warped (sH, sW) uint8, or shapes (2, 0, 0)
+    and (0, 0): if given, tex is uint8 sRGB drawn as it is, with its last
+    column and row once more (a bilinear lookup's second taps there), and its
+    fragments are not shaded here: each one's texel position (x, y down,
+    centres at whole numbers, clamped to the texture) goes to maps for a remap,
+    and warped marks them 1, every other drawn pixel 0 (the clear box first).
     Returns (x0, y0, x1, y1), inclusive, with x0 > x1 if nothing was drawn.
     error_model="numpy": no checks for division by zero, which would keep
     loops from vectorising.
     """
     height, width = nearness.shape
-    deferred = maps.shape[0] > 0
+    deferred = maps.shape[1] > 0
     for y in range(clear[1], clear[3] + 1):
         nearness[y, clear[0]:clear[2] + 1] = -np.inf
         if deferred:
-            maps[y, clear[0]:clear[2] + 1, 0] = OUTSIDE
+            warped[y, clear[0]:clear[2] + 1] = 0
     ambient, albedo, light_dir, light_rgb, spec_lut, spec_cut, flat = shading
     ray, half_dir = _view(pos, perspective, *view, light_dir, width, height)
     normals = pos[:0] if flat else vertex_normals(pos, faces)
@@ -330,7 +329,7 @@ def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, 
             (-screen[v0, 2], -screen[v1, 2], -screen[v2, 2])
         k0, dk1, dk2 = keys[0], (keys[1] - keys[0]) * inv_area, (keys[2] - keys[0]) * inv_area
         k = kind[t]
-        warped = deferred and textured and k == SKIN  # left to the remap: see maps
+        remapped = deferred and textured and k == SKIN  # left to the remap: see maps
         # the eye's position or the texture's uv need a perspective division per pixel
         attr, n_attr = (POS, 3) if k >= EYE else (UV, 2 if textured and k == SKIN else 0)
         vals = pos if k >= EYE else uv
@@ -400,14 +399,15 @@ def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, 
                 if not z > nearness[uy, ux]:
                     continue
                 nearness[uy, ux] = z
-                if warped:
+                if remapped:
                     x = np.float64(i)
-                    maps[uy, ux, 0] = min(max((du * x + u0) * w[i] * tw - 0.5, 0.0), tw - 1.0)
-                    maps[uy, ux, 1] = min(max((1.0 - (dv * x + v0) * w[i]) * th - 0.5, 0.0), th - 1.0)
+                    maps[0, uy, ux] = min(max((du * x + u0) * w[i] * tw - 0.5, 0.0), tw - 1.0)
+                    maps[1, uy, ux] = min(max((1.0 - (dv * x + v0) * w[i]) * th - 0.5, 0.0), th - 1.0)
+                    warped[uy, ux] = 1
                     depth[uy, ux] = 1.0 / np.float64(z) if perspective else -z
                     continue
                 if deferred:
-                    maps[uy, ux, 0] = OUTSIDE
+                    warped[uy, ux] = 0
                 if k == MOUTH:
                     cr, cg, cb = mouth(teeth, qx, py)
                 else:

@@ -90,6 +90,13 @@ class PacketDecoder:
         ``size`` bytes being read."""
         return self.position + size - self._paid
 
+    @property
+    def _header(self) -> Header:
+        """The header, where a packet is decoded: only packets after one are."""
+        if self.header is None:
+            raise BitstreamError("a packet before the stream's header")
+        return self.header
+
     def allowance(self, size: int) -> int:
         """Coded frames a keyframe or end mark of ``size`` bytes may lie beyond the next one expected:
         :data:`~protocol.framing.MAX_COUNT` per byte :meth:`unpaid` (the frames between were in
@@ -247,7 +254,7 @@ class PacketDecoder:
         group, dec = self._group, Decoder(bytes(buf[pos:pos + MAX_BODY]), SYNC)
         saved, dec.journal = group.state(), []  # the group changes only if the packet passes its check
         try:
-            decoded, interval = [], self.header.key_interval
+            decoded, interval = [], self._header.key_interval
             while True:
                 decoded.append(group.decode_delta(dec))
                 if packet_ends(len(decoded), self._next + len(decoded), interval):
@@ -299,7 +306,7 @@ class PacketDecoder:
         return [header]
 
     def _on_model(self, body: bytes) -> list | None:
-        got = read_varint(body, 0, self.header.model_size)
+        got = read_varint(body, 0, self._header.model_size)
         if got is None:
             return None
         offset, pos = got
@@ -307,10 +314,10 @@ class PacketDecoder:
         if offset < len(self._model) or not chunk:
             self.stats.duplicates += 1
             return []
-        if offset > len(self._model) or offset + len(chunk) > self.header.model_size:
+        if offset > len(self._model) or offset + len(chunk) > self._header.model_size:
             return None
         self._model += chunk
-        return [Model(bytes(self._model))] if len(self._model) == self.header.model_size else []
+        return [Model(bytes(self._model))] if len(self._model) == self._header.model_size else []
 
     def _on_picture(self, body: bytes) -> list | None:
         """A piece of a picture layer's payload: pieces come in order, one payload at a time (a new
@@ -334,10 +341,10 @@ class PacketDecoder:
         if len(held[2]) < total:
             return []
         self._picture = None
-        return [Picture(frame * self.header.divisor, bytes(held[2]))]
+        return [Picture(frame * self._header.divisor, bytes(held[2]))]
 
     def _on_end(self, body: bytes, size: int) -> list | None:
-        divisor = self.header.divisor
+        divisor = self._header.divisor
         try:
             got = read_varint(body, 0, MAX_FRAME * divisor)
         except BitstreamError:
@@ -362,8 +369,8 @@ class PacketDecoder:
     def _emit(self, coded: int, decoded: list[tuple[list[int], bool]]) -> list:
         events = []
         for c, (values, face) in enumerate(decoded, coded):
-            params = self.header.values(values)
-            frame = c * self.header.divisor
+            params = self._header.values(values)
+            frame = c * self._header.divisor
             events += self._fill(frame, (c, params))
             events.append(Frame(frame, params, face))
             self._last, self._out = (c, params, face), frame + 1
@@ -376,18 +383,18 @@ class PacketDecoder:
         concealed: interpolated towards ``target`` over the frames lost between, else held."""
         events = []
         if self._last is None:
-            held, face, start = np.zeros(len(self.header.names)), False, None
+            held, face, start = np.zeros(len(self._header.names)), False, None
         else:
             start, held, face = self._last
-        follows = complete or (target is not None and start is not None and target[0] == start + 1)
+        divisor = self._header.divisor
         for f in range(self._out, until):
             if complete:
                 events.append(Frame(f, held, face, interpolated=True))
-            elif follows:
-                t = (f - start * self.header.divisor) / self.header.divisor
+            elif target is not None and start is not None and target[0] == start + 1:  # follows directly
+                t = (f - start * divisor) / divisor
                 events.append(Frame(f, held + t * (target[1] - held), face, interpolated=True))
             elif target is not None and start is not None:  # lost frames between two decoded ones
-                t = (f - start * self.header.divisor) / ((target[0] - start) * self.header.divisor)
+                t = (f - start * divisor) / ((target[0] - start) * divisor)
                 events.append(Frame(f, held + t * (target[1] - held), face, concealed=True))
                 self.stats.concealed += 1
             else:
@@ -535,10 +542,11 @@ class StreamDecoder(ByteStreamDecoder):
         got = self._core.accept_wire(self._buf, pos, final)
         if got is None:
             return None
-        if got[0] is None:
+        events, used = got
+        if events is None:
             return self._skip(1, "packet fails its check or cannot be decoded"), 1
         self._synced = True
-        return got
+        return events, used
 
     def _skip(self, n: int, reason: str) -> list:
         self._synced = False

@@ -72,8 +72,8 @@ class PacketEncoder:
         self._held: list[int] | None = None
         #: (k,) float64 the decoder outputs for the last coded frame (None before one): exactly its Frame.params.
         self.reconstruction: np.ndarray | None = None
-        self._group: GroupState | None = None
-        self._coder: Encoder | None = None
+        self._group = GroupState(len(header.names), header.skip_static, self._new_bit)  # anew at each key
+        self._coder: Encoder | None = None  # the pending packet's
         self._kind = self._first = self._count = 0
 
     @property
@@ -118,34 +118,39 @@ class PacketEncoder:
         self._held, self.reconstruction = values, self._h.values(values)
         face = bool(face_seen)
         if coded % self._h.key_interval == 0:
-            self._group = GroupState(len(values), self._h.skip_static, self._new_bit)
-            self._start(KEY, coded)
-            self._group.encode_key(self._coder, values, face)
+            self._group = group = GroupState(len(values), self._h.skip_static, self._new_bit)
+            coder = self._start(KEY, coded)
+            group.encode_key(coder, values, face)
         else:
-            if self._coder is None:
-                self._start(DELTA, coded)
-            elif self._kind == DELTA:
-                self._group.encode_more(self._coder, True)
-            self._group.encode_delta(self._coder, values, face)
+            group, pending = self._group, self._coder
+            if pending is None:
+                coder = self._start(DELTA, coded)
+            else:
+                coder = pending
+                if self._kind == DELTA:
+                    group.encode_more(coder, True)
+            group.encode_delta(coder, values, face)
         self._count += 1
         implied = packet_ends(self._count, coded + 1, self._h.key_interval)
-        if implied or self._group.active >= self._fpp:
-            return [self._flush(stop_flag=not implied)]
+        if implied or group.active >= self._fpp:
+            return [self._flush(coder, stop_flag=not implied)]
         return []
 
     def end(self) -> list[bytes]:
         """The last pending packet and the end mark."""
-        pending = [self._flush(stop_flag=True)] if self._coder is not None else []
+        pending = [] if self._coder is None else [self._flush(self._coder, stop_flag=True)]
         return pending + [build(END, varint(self._frames))]
 
-    def _start(self, kind: int, coded: int) -> None:
+    def _start(self, kind: int, coded: int) -> Encoder:
+        """A new pending packet's coder."""
         self._coder = Encoder(SYNC)
         self._kind, self._first, self._count = kind, coded, 0
+        return self._coder
 
-    def _flush(self, stop_flag: bool) -> bytes:
-        """The pending packet; ``stop_flag``: the decoder cannot tell that it ends here (a delta
-        packet then codes so)."""
-        coder, group, self._coder = self._coder, self._group, None
+    def _flush(self, coder: Encoder, stop_flag: bool) -> bytes:
+        """The pending packet, whose coder is ``coder``; ``stop_flag``: the decoder cannot tell that it
+        ends here (a delta packet then codes so)."""
+        group, self._coder = self._group, None
         if self._kind == DELTA and stop_flag:
             group.encode_more(coder, False)
         group.end_packet()

@@ -70,7 +70,7 @@ class SecureStreamDecoder(_Secure, ByteStreamDecoder):
                 return [], 1 + size
             return self._skip(1, ""), 1
         packet = self.opener.open(sealed) if size else None
-        if packet is None:
+        if packet is None or not size:
             return self._skip(1, "packet fails authentication"), 1
         return self._core.packet(packet), 1 + size  # authentic: never resync inside it
 

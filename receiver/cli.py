@@ -117,9 +117,10 @@ def _run(args) -> int:
     source = listener.source() if listener else open_file(args.input or "-", sys.stdin.buffer, key)
     session = ReceiveSession(open_sinks, args.size, face, f"--face {args.face}", args.fps, look=args.look,
                              dump=args.dump)
-    progress = progress_for("fd-recv", args.quiet or args.json) if source.size else None
-    update = (lambda: progress.update(source.consumed, source.size, f"{session.frames} frames")) \
-        if progress else None
+    size = source.size
+    progress = progress_for("fd-recv", args.quiet or args.json) if size else None
+    update = (lambda: progress.update(source.consumed, size, f"{session.frames} frames")) \
+        if progress and size else None
     started = time.perf_counter()
     if viewer:
         viewer.stats = live_stats(session, source, started)

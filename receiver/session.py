@@ -48,7 +48,7 @@ class ReceiveSession:
         self.look: str | None = None
         self._warn = warn or (lambda line: print(f"fd-recv: warning: {line}", file=sys.stderr))
         self._sinks: list = []
-        self._header: Header | None = None
+        self._header_seen: Header | None = None
         self._view: View | None = None
         self._ratio = Fraction(1)
         self.source: StreamSource | None = None
@@ -130,7 +130,7 @@ class ReceiveSession:
                        "the model's picture alone until its next key")
 
     def _start(self, header: Header) -> None:
-        self._header = header
+        self._header_seen = header
         out = self._out_fps = self._fps or header.fps
         self._ratio = Fraction(out).limit_denominator(1001) / Fraction(header.fps).limit_denominator(1001)
         if self._given is not None:
@@ -142,13 +142,20 @@ class ReceiveSession:
             self._show(load_base_face(), "generic")
         # else: the model follows in-band, before the first frame
 
+    @property
+    def _header(self) -> Header:
+        """The stream's header, which comes before its model and frames."""
+        if self._header_seen is None:
+            raise BitstreamError("a model or frame before the stream's header")
+        return self._header_seen
+
     def _use_model(self, data: bytes) -> None:
         face = decode_face(data, "the stream's face model")
         if face.content_id != self._header.face_id:
             raise BitstreamError("the stream's face model does not match the face id in its header")
         self._show(face, "stream")
 
-    def _show(self, face: BaseFace, kind: str, check_id: bool = True) -> None:
+    def _show(self, face: BaseFace, kind: str, check_id: bool = True) -> View:
         look = self._look or default_look(face)
         if not check_id and face.picture is None and look == "picture":
             look = "shaded"  # the in-band model was lost, and its picture with it
@@ -157,16 +164,18 @@ class ReceiveSession:
             look = "shaded"
         natural = output_size(self._header, face, look)
         size = natural if self._size is None else fitted(self._size, natural)
-        self._view = open_view(look, self._header, face, size, check_id)
-        self._view.render(np.zeros(len(self._header.names)))  # compile and warm up before frames arrive
+        self._view = view = open_view(look, self._header, face, size, check_id)
+        view.render(np.zeros(len(self._header.names)))  # compile and warm up before frames arrive
         self.face_kind, self.face_id, self.look = kind, face.content_id, look
         if not self._sinks:
             self._sinks = self._open_sinks(self._out_fps, size)
+        return view
 
     def _frame(self, frame: Frame, arrived: float) -> None:
-        if self._view is None:  # a datagram of the in-band model was lost
+        view = self._view
+        if view is None:  # a datagram of the in-band model was lost
             self._warn("the stream's face model did not arrive whole: drawing the generic face")
-            self._show(load_base_face(), "generic", check_id=False)
+            view = self._show(load_base_face(), "generic", check_id=False)
         if not self.frames and self.source is not None:
             self.bytes_before_frames = self.source.consumed
         self.frames += 1
@@ -181,7 +190,7 @@ class ReceiveSession:
         repeats = math.ceil((frame.seq + 1) * self._ratio) - math.ceil(frame.seq * self._ratio)
         if not repeats:
             return
-        image = self._view.render(frame.params, frame.seq)
+        image = view.render(frame.params, frame.seq)
         for _ in range(repeats):
             for sink in self._sinks:
                 sink.write(image)
@@ -210,8 +219,8 @@ class ReceiveSession:
             "damage_reports": s.damaged if s else 0, "packets": s.packets if s else 0,
             "duplicates": s.duplicates if s else 0, "skipped_bytes": s.skipped_bytes if s else 0,
             "ended": bool(self.source and self.source.decoder.ended),
-            "fps": self._header.fps if self._header else None,
-            "output_fps": float(self._fps or self._header.fps) if self._header else None,
+            "fps": self._header_seen.fps if self._header_seen else None,
+            "output_fps": float(self._fps or self._header_seen.fps) if self._header_seen else None,
             "face": self.face_kind, "face_id": self.face_id, "look": self.look,
             "latency_ms": {"median": round(float(np.median(ms)), 2), "p95": round(float(np.percentile(ms, 95)), 2),
                            "max": round(1000 * self.latency_max, 2)},

@@ -156,6 +156,13 @@ class FaceAnalyser:
         self._param_filter = None if on_landmarks else smoothing.filter(fps, steps)
         self.frames_without_face = 0
 
+    @property
+    def _calibrated(self) -> tuple[RestFace, Pose]:
+        """The rest face and its pose, once :meth:`_calibrate` has chosen them."""
+        if self.rest is None or self._rest_pose is None:
+            raise RuntimeError("the rest frame is not chosen yet")
+        return self.rest, self._rest_pose
+
     def _pose_names(self) -> tuple[str, ...]:
         return POSE_PARAMS if self._translate else POSE_PARAMS[:3]
 
@@ -217,16 +224,16 @@ class FaceAnalyser:
         face); ``still``: the frame's global motion (empty without a reference picture), which
         comes last and is measured with or without a face."""
         filters = (self._landmark_filter, self._pose_filter, self._param_filter)
-        if aligned is None:
+        if aligned is None or pose is None:
             for f in filters:
                 if f is not None:
                     f.reset()
             relaxed = previous * RELAX
             relaxed[len(relaxed) - len(still):] = still
             return relaxed, None
-        observed = target = self.rest.target(aligned, self._base)
+        observed = target = self._calibrated[0].target(aligned, self._base)
         head = self._head(pose)
-        if self._landmark_filter is not None:
+        if self._landmark_filter is not None and self._pose_filter is not None:
             target = self._landmark_filter(target)
             target[self._lid_rims] = observed[self._lid_rims]
             head = self._pose_filter(head)
@@ -253,7 +260,7 @@ class FaceAnalyser:
         rotation = pose.head_rotation_vector()
         if not self._translate:
             return rotation
-        rest = self._rest_pose
+        rest = self._calibrated[1]
         seen = (self._pivot - pose.translation) @ pose.rotation / pose.scale  # pivot in camera axes
         seen_rest = (self._pivot - rest.translation) @ rest.rotation / rest.scale
         shift = rest.scale * (seen - seen_rest)

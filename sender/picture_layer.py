@@ -163,7 +163,7 @@ class PictureLayer:
         favour = self._favour()
         data = self._layer.make(seq, video, key, lambda decoded, before: choose_blocks(
             model, decoded, rgb, before, favour=favour))
-        packets = encoder.picture(seq, data)
+        packets = [] if data is None else encoder.picture(seq, data)
         bits = 8 * stream_size(packets, self._sealed)
         # A packet's size to expect: after the first key, half of it (the next frame comes after the
         # longest gap and costs the most: sadtalker_WDA_KatieHill at 4 kbit/s, a key of 3656 bits, then

@@ -217,7 +217,7 @@ class SendSession:
                                               self.config.redundancy if self.config.datagrams else None, self._finest)
                 self._keeper = RateKeeper(aim, fps, self.config.dead_zone)
             self._configure(quality)
-            if self._layered:
+            if self._layered and self.config.bitrate is not None:
                 self.picture = PictureLayer(self._face, self.header, self.config.bitrate, self.sealed,
                                             self.config.datagrams)
             results = chain(first, results)
