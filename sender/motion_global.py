@@ -31,10 +31,15 @@ CORNERS = 300  # most points followed
 #: the 17 corners of a plain blue wall and a shoulder gave motion up to 5 pixels that was not
 #: there: 0.2 kbit/s more for 0.04 dB.
 MIN_POINTS = 20
-ROUND_TRIP = 0.5  # pixels: a point that does not flow back to where it started is dropped
+ROUND_TRIP = 0.5  # picture pixels: a point that does not flow back to where it started is dropped
 RANSAC_PIXELS = 1.0
 #: A still camera explaining this share of the fit's agreeing points is taken to be still (exactly).
 STILL_SHARE = 0.8
+#: Pictures whose larger side is this many pixels or more are followed at a whole fraction of their
+#: size, at most this side (the thresholds above stay in the picture's pixels). At 1920x1080 the
+#: flow, the sender's largest cost there, took 6.2 ms a frame at full size and 2.3 at half; the
+#: bundled clip scaled to 1080p came out at 27.68 dB instead of 27.26 (worst frame 21.3, was 20.2).
+WORK_SIDE = 960
 _IDENTITY = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
@@ -64,13 +69,15 @@ class GlobalMotion:
 
     def __init__(self, picture: ReferencePicture, vertices: np.ndarray) -> None:
         self.reference = Placement.from_matrix(picture.projection)
-        self._gray = cv2.cvtColor(picture.image, cv2.COLOR_RGB2GRAY)
-        height, width = self._gray.shape
+        height, width = picture.image.shape[:2]
         self.size = (width, height)
-        face = self.reference.apply(vertices)[:, :2] * [1.0, -1.0]
-        found = cv2.goodFeaturesToTrack(self._gray, CORNERS, 0.01, 5, mask=face_mask(face, self.size))
+        self._shrink = max(1, max(width, height) // WORK_SIDE)  # picture pixels a working pixel
+        self._work = (round(width / self._shrink), round(height / self._shrink))
+        self._gray = self._grey(cv2.cvtColor(picture.image, cv2.COLOR_RGB2GRAY))
+        face = self.reference.apply(vertices)[:, :2] * [1.0, -1.0] / self._shrink
+        found = cv2.goodFeaturesToTrack(self._gray, CORNERS, 0.01, 5, mask=face_mask(face, self._work))
         self._points = np.zeros((0, 1, 2), np.float32) if found is None else found.astype(np.float32)
-        self._matrix = _IDENTITY
+        self._matrix = _IDENTITY  # working pixels of the picture -> of the frame
 
     @property
     def usable(self) -> bool:
@@ -81,29 +88,34 @@ class GlobalMotion:
         """(4,) the global motion of BGR ``frame`` (scaled to the picture's size) whose tracked
         landmarks (pixels, None without a face) are given; the last frame's when too few points agree."""
         gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
-        factor = self.size[0] / gray.shape[1]
-        if gray.shape[::-1] != self.size:
-            gray = cv2.resize(gray, self.size, interpolation=cv2.INTER_AREA)
+        factor = self._work[0] / gray.shape[1]
         if self.usable:
-            self._follow(gray, None if landmarks is None else np.asarray(landmarks)[:, :2] * factor)
-        return global_motion(self._matrix, self.reference, self.size)
+            self._follow(self._grey(gray), None if landmarks is None else np.asarray(landmarks)[:, :2] * factor)
+        matrix = self._matrix.copy()
+        matrix[:, 2] *= self._shrink  # in the picture's pixels
+        return global_motion(matrix, self.reference, self.size)
+
+    def _grey(self, gray: np.ndarray) -> np.ndarray:
+        """``gray`` at the working size."""
+        return gray if gray.shape[::-1] == self._work else cv2.resize(gray, self._work, interpolation=cv2.INTER_AREA)
 
     def _follow(self, gray: np.ndarray, face: np.ndarray | None) -> None:
         start = self._points
         guess = (start @ self._matrix[:, :2].T + self._matrix[:, 2]).astype(np.float32)
         found, ok = _flow(self._gray, gray, start, guess)
         back, ok_back = _flow(gray, self._gray, found, start)
-        keep = ok & ok_back & (np.linalg.norm((back - start)[:, 0], axis=1) < ROUND_TRIP)
+        keep = ok & ok_back & (np.linalg.norm((back - start)[:, 0], axis=1) < ROUND_TRIP / self._shrink)
         if face is not None:
-            keep &= face_mask(face, self.size)[np.clip(np.round(found[:, 0, 1]).astype(int), 0, self.size[1] - 1),
-                                                np.clip(np.round(found[:, 0, 0]).astype(int), 0, self.size[0] - 1)] > 0
+            width, height = self._work
+            keep &= face_mask(face, self._work)[np.clip(np.round(found[:, 0, 1]).astype(int), 0, height - 1),
+                                                 np.clip(np.round(found[:, 0, 0]).astype(int), 0, width - 1)] > 0
         if keep.sum() < MIN_POINTS:
             return
         matrix, inliers = cv2.estimateAffinePartial2D(start[keep], found[keep], method=cv2.RANSAC,
-                                                      ransacReprojThreshold=RANSAC_PIXELS)
+                                                      ransacReprojThreshold=RANSAC_PIXELS / self._shrink)
         if matrix is None or inliers is None or inliers.sum() < MIN_POINTS:
             return
-        still = np.linalg.norm((found - start)[keep, 0], axis=1) < RANSAC_PIXELS
+        still = np.linalg.norm((found - start)[keep, 0], axis=1) < RANSAC_PIXELS / self._shrink
         self._matrix = _IDENTITY if still.sum() >= STILL_SHARE * inliers.sum() else matrix
 
 

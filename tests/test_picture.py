@@ -394,6 +394,23 @@ def test_the_sender_measures_a_known_global_motion():
     np.testing.assert_allclose(measure.measure(big, landmarks * 2), got, atol=0.01)
 
 
+def test_a_large_picture_is_followed_at_a_fraction_of_its_size():
+    """A 1920-pixel picture is followed at half size, its motion given in its own pixels: within
+    half a pixel (a quarter of a working one) at its corners; still is still."""
+    size = 1920
+    face = a_textured_scene(size)
+    measure = GlobalMotion(face.picture, face.vertices)
+    landmarks = landmarks_of(face, measure.reference)
+    bgr = cv2.cvtColor(face.picture.image, cv2.COLOR_RGB2BGR)
+    np.testing.assert_array_equal(measure.measure(bgr, landmarks), np.zeros(4))
+    matrix = global_matrix(np.array([0.03, -0.02, 0.01, 0.5]), measure.reference, (size, size))
+    frame = cv2.warpAffine(bgr, matrix, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    back = global_matrix(measure.measure(frame, landmarks), measure.reference, (size, size))
+    corners = np.array([[0, 0], [size - 1, 0], [0, size - 1], [size - 1, size - 1]], float)
+    error = np.abs(corners @ back[:, :2].T + back[:, 2] - (corners @ matrix[:, :2].T + matrix[:, 2]))
+    assert error.max() < 0.5
+
+
 def test_a_plain_background_carries_no_global_motion():
     from facedeform.sender.analysis import picture_names
 
