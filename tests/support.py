@@ -172,10 +172,11 @@ def a_person(seed=0):
     return neutral, texture
 
 def as_version(data: bytes, version: int) -> bytes:
-    """A current face file rewritten as an older version (1-5) would have held it: vertices, uv and
-    triangles written out in full before version 6; the motion basis's patterns as <f2 in version 4;
-    before it the feature points written out, the patterns as <f4, no ring weights; before 3, no
-    picture; before 2, no motion basis."""
+    """A current face file rewritten as an older version (1-6) would have held it: the picture's
+    numbers (projection, ring weights, open mouth's points) in the JSON before version 7; vertices,
+    uv and triangles written out in full before version 6; the motion basis's patterns as <f2 in
+    version 4; before it the feature points written out, the patterns as <f4, no ring weights;
+    before 3, no picture; before 2, no motion basis."""
     n = int.from_bytes(data[8:12], "little")
     info = json.loads(data[12:12 + n])
     k, c, _ = info.get("motion", (0, 0, ""))
@@ -183,12 +184,28 @@ def as_version(data: bytes, version: int) -> bytes:
     raw = lzma.decompress(data[12 + n:12 + n + packed], lzma.FORMAT_RAW, filters=_PACKING)
     vertices = BASE.vertices + np.frombuffer(raw, "<i2", 3 * info["vertices"]).reshape(-1, 3) / VERTEX_STEPS
     at = 6 * info["vertices"]
-    uv = BASE.uv if info.pop("uv", None) == "base" else np.frombuffer(raw, "<f4", 2 * info["vertices"], at)
+    uv = BASE.uv if info.get("uv") == "base" else np.frombuffer(raw, "<f4", 2 * info["vertices"], at)
     at += 0 if uv is BASE.uv else 8 * info["vertices"]
-    faces = BASE.faces if info.pop("topology", None) == "base" else np.frombuffer(raw, "<u2", 3 * info["faces"], at)
+    faces = BASE.faces if info.get("topology") == "base" else np.frombuffer(raw, "<u2", 3 * info["faces"], at)
     at += 0 if faces is BASE.faces else 6 * info["faces"]
+    mesh_end, motion_end = at, at + 2 * k + 3 * c * k
+    if "picture" in info:  # version 7's numbers, after the motion basis, back into the JSON
+        info["projection"] = np.frombuffer(raw, "<f8", 12, motion_end).reshape(3, 4).tolist()
+        rings, points = info.pop("rings", None), info.pop("mouth_points", None)
+        if rings is not None:
+            info["rings"] = np.frombuffer(raw, "u1", rings, motion_end + 96).astype(int).tolist()
+        if points is not None:
+            info["mouth_points"] = np.frombuffer(raw, "<f4", 2 * points, motion_end + 96 + (rings or 0)).reshape(
+                -1, 2).astype(float).tolist()
+    if version == 6:
+        repacked = lzma.compress(raw[:motion_end], lzma.FORMAT_RAW, filters=_PACKING)
+        info["packed"] = len(repacked)
+        text = json.dumps(info).encode()
+        return data[:6] + bytes([6, 0]) + len(text).to_bytes(4, "little") + text + repacked + data[12 + n + packed:]
+    info.pop("uv", None), info.pop("topology", None)
     mesh = b"".join(np.ascontiguousarray(a, dtype=t).tobytes() for a, t in ((vertices, "<f4"), (uv, "<f4"),
                                                                             (faces, "<u2")))
+    assert mesh_end == at
     patterns = np.frombuffer(raw, "<i1", 3 * c * k, at + 2 * k)
     if version < 5:
         patterns = (patterns / PATTERN_SCALE).astype("<f2" if version == 4 else "<f4")
@@ -205,6 +222,7 @@ def as_version(data: bytes, version: int) -> bytes:
     assert version >= 2 or not k
     text = json.dumps(info).encode()
     return data[:6] + bytes([version, 0]) + len(text).to_bytes(4, "little") + text + mesh + motion + images
+
 
 def with_info(data: bytes, **changes) -> bytes:
     """The file with its JSON description changed (and its length field kept right)."""

@@ -2,13 +2,22 @@
 
 import hashlib
 import json
+import lzma
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from facedeform.codec.deform import PAPER_PARAMS, Deformer
-from facedeform.codec.face_file import VERTEX_STEPS, Face, decode_face, encode_face, personal_face, save_face_file
+from facedeform.codec.face_file import (
+    _PACKING,
+    VERTEX_STEPS,
+    Face,
+    decode_face,
+    encode_face,
+    personal_face,
+    save_face_file,
+)
 from facedeform.codec.picture import Placement
 from facedeform.common.errors import InputError
 from tests.support import BASE, a_person, a_picture, a_picture_with_a_mouth, as_version, with_info
@@ -147,9 +156,14 @@ def test_ring_weights_round_trip_and_must_fit_the_face():
     weights = np.linspace(0.0, 1.0, 144)
     data = encode_face(replace(person, picture=replace(person.picture, ring_weights=weights)))
     np.testing.assert_allclose(decode_face(data).picture.ring_weights, weights, atol=0.5 / 255)
+    older = as_version(data, 6)  # the weights in the JSON, where any value can be written
     for rings in ([1] * 143, [256] * 144, [-1] * 144, "x", [[1, 2]] * 72, [float("inf")] * 144):
         with pytest.raises(InputError) as info:
-            decode_face(with_info(data, rings=rings), "me.fdface")
+            decode_face(with_info(older, rings=rings), "me.fdface")
+        assert "\n" not in str(info.value) and str(info.value).startswith("me.fdface: ")
+    for count in (143, 5000, -1, "x"):  # version 7: their count
+        with pytest.raises(InputError) as info:
+            decode_face(with_info(data, rings=count), "me.fdface")
         assert "\n" not in str(info.value) and str(info.value).startswith("me.fdface: ")
 
 
@@ -174,9 +188,31 @@ def _projection(scale=40.0, shift=(48.0, -40.0, 0.0), rotation=None):
 def test_hostile_picture_fields_are_refused_in_one_line(changes, message):
     neutral, texture = a_person()
     data = personal_face(neutral, texture, picture=a_picture())
+    if "projection" in changes:  # in the JSON before version 7
+        data = as_version(data, 6)
     with pytest.raises(InputError, match=message) as info:
         decode_face(with_info(data, **changes), "me.fdface")
     assert "\n" not in str(info.value) and str(info.value).startswith("me.fdface: ")
+
+
+@pytest.mark.parametrize("projection, message", [
+    ([[float("nan")] * 4] * 3, "not a finite 3x4"),
+    (_projection(rotation=np.diag([1.0, 2.0, 1.0])), "not a rotation and scale"),
+    (_projection(scale=1e6), "out of the picture"),
+])
+def test_a_hostile_packed_projection_is_refused_in_one_line(projection, message):
+    """Version 7 packs the projection (the last 96 bytes before the images when there are no rings
+    or open mouth): its numbers are checked as the JSON's were."""
+    neutral, texture = a_person()
+    data = personal_face(neutral, texture, picture=a_picture())
+    n = int.from_bytes(data[8:12], "little")
+    size = json.loads(data[12:12 + n])["packed"]
+    raw = lzma.decompress(data[12 + n:12 + n + size], lzma.FORMAT_RAW, filters=_PACKING)
+    packed = lzma.compress(raw[:-96] + np.asarray(projection, "<f8").tobytes(), lzma.FORMAT_RAW, filters=_PACKING)
+    hostile = with_info(data[:12 + n] + packed + data[12 + n + size:], packed=len(packed))
+    with pytest.raises(InputError, match=message) as info:
+        decode_face(hostile, "me.fdface")
+    assert "\n" not in str(info.value)
 
 
 @pytest.mark.parametrize("size, message", [((97, 80), "not a 97x80"), ((96, 8), "reference picture of 96x8"),
@@ -216,6 +252,8 @@ def test_the_open_mouth_round_trips():
 def test_hostile_open_mouth_fields_are_refused_in_one_line(changes, message):
     neutral, texture = a_person()
     data = personal_face(neutral, texture, picture=a_picture_with_a_mouth())
+    if "mouth_points" in changes:  # in the JSON before version 7
+        data = as_version(data, 6)
     with pytest.raises(InputError, match=message) as info:
         decode_face(with_info(data, **changes), "me.fdface")
     assert "\n" not in str(info.value)
