@@ -80,7 +80,7 @@ class VideoEncoder:
         codec.bit_rate = max(1000, int(bitrate))
         codec.options = {"preset": PRESET, "svtav1-params": f"pred-struct=1:keyint=0:scd=0:lookahead=0:rc=2:rtc={RTC}"}
         codec.open()
-        self._codec, self._count, self.size = codec, 0, size
+        self._codec, self._count, self.size, self._closed = codec, 0, size, False
 
     def encode(self, rgb: np.ndarray, key: bool = False) -> bytes:
         """The temporal unit of ``rgb`` ((h, w, 3) uint8 at the video's size), a key if asked."""
@@ -95,8 +95,10 @@ class VideoEncoder:
         return data[len(_TEMPORAL_DELIMITER):] if data.startswith(_TEMPORAL_DELIMITER) else data
 
     def close(self) -> None:
-        """Ends the encoder: its last packets, if any, are not needed (each frame's came at once)."""
-        if self._codec.is_open:
+        """Ends the encoder, once: its last packets, if any, are not needed (each frame's came at once).
+        An encoder let go without it prints an error when it is collected."""
+        if self._codec.is_open and not self._closed:
+            self._closed = True
             self._codec.encode(None)
 
 

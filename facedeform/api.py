@@ -54,7 +54,10 @@ def encode(video: str | PathLike | Iterable[np.ndarray], face: Face | str | Path
         face = Face.load(_path(face, "face"), key)
     source = _path(video, "video") if isinstance(video, str | PathLike) else _FrameSource(video, fps)
     session = SendSession(source, config, face=face)
-    yield from session.stream()
+    try:
+        yield from session.stream()
+    finally:  # also when the caller stops early
+        session.close()
 
 
 def decode(stream: bytes | str | PathLike | Iterable[bytes], face: Face | str | PathLike | None = None, *,

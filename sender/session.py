@@ -294,7 +294,10 @@ class SendSession:
                 f"{s['frames_per_second']:.1f} frames/s")
 
     def close(self) -> None:
-        """Finishes the dump, if one was asked for and a frame was sent (else no file is written)."""
+        """Ends the picture layer's encoder (the stream may have been left before its end) and finishes
+        the dump, if one was asked for and a frame was sent (else no file is written)."""
+        if self.picture is not None:
+            self.picture.close()
         if self._dump is not None:
             dump, self._dump = self._dump, None
             dump.close({"names": np.array(self.header.names),

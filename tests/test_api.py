@@ -1,5 +1,6 @@
 """The library API (facedeform.enroll, encode, decode): the same streams and pictures as the tools."""
 
+import gc
 import io
 
 import cv2
@@ -28,6 +29,14 @@ def test_encode_writes_what_fd_send_writes(face, tmp_path):
     assert b"".join(facedeform.encode(CLIP, str(path))) == sent.stdout
     # frames from memory (RGB) code as the file does
     assert b"".join(facedeform.encode(iter(rgb_frames()), face)) == sent.stdout
+
+
+def test_an_encode_left_early_ends_its_picture_layer_quietly(face, capfd):
+    chunks = facedeform.encode(CLIP, face, bitrate=4000, embed_face=False)
+    next(chunks), next(chunks)  # the header and a first frame with the layer's video
+    chunks.close()
+    gc.collect()  # where an encoder not ended printed an error
+    assert capfd.readouterr().err == ""
 
 
 def test_decode_draws_what_fd_recv_draws(face, tmp_path):
