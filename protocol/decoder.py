@@ -69,7 +69,9 @@ class PacketDecoder:
         self._known = {h.ident: h for h in known}
         self._late_join = late_join
         self._start = 0  # the first frame output
-        self._recent: deque[bytes] = deque(maxlen=MAX_REDUNDANCY + 1)  # the last packets accepted
+        # the last frames packets accepted: a datagram's copies (picture and header packets between them
+        # pushed out a keyframe whose copy, decoded again, then broke the delta after it)
+        self._recent: deque[bytes] = deque(maxlen=MAX_REDUNDANCY + 1)
         self.stats = Stats()
         self.ended = False
         self._group: GroupState | None = None  # None: waiting for a keyframe
@@ -132,7 +134,8 @@ class PacketDecoder:
                     if pos < 0:
                         break
                     continue
-                self._recent.append(data[pos:pos + got[1]])
+                if data[pos] != SYNC or packet_type(data[pos + 1]) == KEY:  # a frames packet: what copies repeat
+                    self._recent.append(data[pos:pos + got[1]])
                 accepted = True
                 events += got[0]
                 pos += got[1]
