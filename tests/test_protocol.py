@@ -37,6 +37,10 @@ def header(names=PAPER_PARAMS, quality=3, **kw) -> Header:
     return Header(25.0, names, steps_for(names, quality), FACE, quality=quality, **kw)
 
 
+#: A header whose steps are no quality level's: they are written out.
+CUSTOM = Header(25.0, PAPER_PARAMS, steps_for(PAPER_PARAMS) * 1.5, FACE, quality=0)
+
+
 def random_basis(k: int, seed: int = 0) -> np.ndarray:
     """(k, k) int8 coding basis: a random rotation, rounded as the header carries it."""
     q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(k, k)))
@@ -314,7 +318,7 @@ def test_face_model_travels_after_the_header():
     (bytes(70000), "not an fd stream"),
     (build(HEADER, b"FD\x63" + bytes(40)), f"unsupported stream version 99 \\(this decoder reads version {VERSION}\\)"),
     (build(HEADER, b"FD\x06" + bytes(40)), "unsupported stream version 6"),
-    (build(HEADER, encode_header(header())[:-3]), "header length"),
+    (build(HEADER, encode_header(CUSTOM)[:-3]), "header length"),
 ])
 def test_foreign_input_raises_bitstream_error(data, message):
     dec = StreamDecoder()
@@ -448,6 +452,15 @@ def test_header_fields_out_of_range_are_refused(change):
         replace(header(), **change)
 
 
+def test_a_quality_levels_steps_are_named_not_written():
+    """Steps that are exactly a quality level's cost no bytes (the level byte says them); any other
+    steps are written out, and both come back exactly."""
+    for h in (header(), header(quality=5), CUSTOM):
+        back = parse_header(encode_header(h))
+        assert back == h and np.array_equal(back.steps, h.steps)
+    assert len(encode_header(CUSTOM)) - len(encode_header(header())) == 8 * len(PAPER_PARAMS)
+
+
 def header_bytes_with(h: Header, at: int, value: bytes, length: int = 1) -> bytes:
     body = bytearray(encode_header(h))
     body[at:at + length] = value
@@ -456,12 +469,13 @@ def header_bytes_with(h: Header, at: int, value: bytes, length: int = 1) -> byte
 
 @pytest.mark.parametrize("patch, message", [
     (lambda h: header_bytes_with(h, 7, b"\x02"), "unknown deformation rule 2"),
-    (lambda h: header_bytes_with(h, 3, b"\x08"), "unknown header flags"),
+    (lambda h: header_bytes_with(h, 3, b"\x10"), "unknown header flags"),
     (lambda h: header_bytes_with(h, 8 + len(varint(25000)), b"\x81\x80\x01"), "over its limit"),  # width 16385
-    (lambda h: header_bytes_with(h, len(encode_header(h)) - 8, np.float64(1e306).byteswap().tobytes(), 8),
+    (lambda h: header_bytes_with(CUSTOM, len(encode_header(CUSTOM)) - 8, np.float64(1e306).byteswap().tobytes(), 8),
      "quantiser steps"),
-    (lambda h: header_bytes_with(h, len(encode_header(h)) - 8, np.float64(np.nan).byteswap().tobytes(), 8),
+    (lambda h: header_bytes_with(CUSTOM, len(encode_header(CUSTOM)) - 8, np.float64(np.nan).byteswap().tobytes(), 8),
      "quantiser steps"),
+    (lambda h: header_bytes_with(h, 4, b"\x00"), "quality level 0, which is none"),  # level steps of no level
 ])
 def test_hostile_header_values_are_refused_at_parse(patch, message):
     """A step that could make a decoded value non-finite (1e306 times an index) is refused with the
