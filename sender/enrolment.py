@@ -23,13 +23,13 @@ import numpy as np
 from facedeform.codec.face_file import Face, decode_face, personal_face
 from facedeform.codec.face_model import BaseFace, ReferencePicture, load_base_face, mouth_vertices, normalise
 from facedeform.codec.motion_basis import MAX_COMPONENTS, OVER
-from facedeform.codec.texture import texture_from_frame
 from facedeform.common.errors import InputError, NoFaceError
 from facedeform.sender.calibrate import lip_gap
 from facedeform.sender.motion import learn_motion, residuals
 from facedeform.sender.motion_global import RingWeights
 from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
 from facedeform.sender.sources import open_source
+from facedeform.sender.texture import texture_from_frame
 
 TEXTURE_SIZE = 256  # texels a side: about 20 KB as JPEG, detail for a 512-pixel rendering
 #: A frame's distance from neutral: lip gap (over eye distance) in units of GAP_UNIT plus head

@@ -23,11 +23,11 @@ from facedeform.codec.picture import (
     relative_pose,
 )
 from facedeform.codec.render import Renderer
-from facedeform.codec.texture import texture_from_frame
 from facedeform.common.errors import InputError
 from facedeform.protocol.stream import Header, steps_for
 from facedeform.receiver.face_view import FaceView, PictureView, default_look, open_view
 from facedeform.sender.motion_global import GlobalMotion, RingWeights
+from facedeform.sender.texture import texture_from_frame
 from facedeform.sender.tracker import FaceTracker
 from tests.support import ROOT
 

@@ -12,9 +12,9 @@ import pytest
 from facedeform.codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
 from facedeform.codec.face_model import load_base_face
 from facedeform.codec.render import Renderer
-from facedeform.codec.texture import texture_from_frame
 from facedeform.receiver.face_view import portrait_camera
 from facedeform.sender.analysis import FaceAnalyser, Smoothing
+from facedeform.sender.texture import texture_from_frame
 from facedeform.sender.tracker import FaceTracker
 from tests.support import ROOT
 
