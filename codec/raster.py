@@ -25,9 +25,9 @@ A mesh drawn without lights and with its texture as it is (the whole picture)
 skips normals and shading, and its textured pixels are left to an image warp:
 draw writes each one's texel position into a map and marks it, and OpenCV's
 remap samples the texture there, in its own sRGB encoding, for the marked
-pixels (codec/render.py). A bilinear
-lookup is the fragment's whole cost, and remap's SIMD code does it in a third
-of the time Numba's scalar code takes (docs/hd.md).
+pixels (codec/render.py). A bilinear lookup is the fragment's whole cost, and
+remap's SIMD code does it in a third of the time Numba's scalar code takes
+(docs/hd.md).
 
 Shading is Blinn-Phong in linear light. Per-triangle ``kind`` selects the
 material: SKIN (lit albedo or texture), MOUTH (unlit cavity with a band of

@@ -207,7 +207,7 @@ class Renderer:
         if (uv is None) != (texture is None):
             raise ValueError("uv and texture must be given together")
         if texture is None:
-            return np.zeros((0, 2)), np.zeros((0, 0, 3), np.uint8 if self._own else np.float32)
+            return np.zeros((0, 2)), np.zeros((0, 0, 3), np.float32)
         uv = np.asarray(uv, dtype=np.float64)
         if uv.ndim != 2 or uv.shape[1] != 2 or uv.shape[0] < self._min_vertices \
                 or not np.all(np.isfinite(uv)):

@@ -145,15 +145,16 @@ class SendSession:
         self._face_id = model.content_id
         self._face = model
         self._model = face.data if face is not None and config.embed_face else b""
-        #: the picture layer where the call sends one (``_layered``), once the header is
+        #: the picture layer where the call sends one (``_layer_rate``), once the header is
         self.picture: PictureLayer | None = None
         self._basis: np.ndarray | None = None
         self.sealer = None if config.key is None else SecureSealer(config.key, config.tag_bits)
         reference = model.picture
-        #: The call sends a picture layer: a --bitrate at which one pays (sender.picture_layer.layer_pays),
-        #: a face with a reference picture, every frame sent.
-        self._layered = (config.bitrate is not None and config.picture_layer and reference is not None
-                         and config.divisor == 1 and layer_pays(config.bitrate, reference.image.shape[1::-1]))
+        #: The call's whole rate where it sends a picture layer, else None: a --bitrate at which one pays
+        #: (sender.picture_layer.layer_pays), a face with a reference picture, every frame sent.
+        self._layer_rate = config.bitrate if (
+            config.bitrate is not None and config.picture_layer and reference is not None and config.divisor == 1
+            and layer_pays(config.bitrate, reference.image.shape[1::-1])) else None
         self._aim, self._finest, self._level_share = self._parameter_aim(resolve_layout(config.layout, model))
         self._keeper: RateKeeper | None = None
         self._configure(DEFAULT_QUALITY if config.quality is None else config.quality)
@@ -178,7 +179,7 @@ class SendSession:
         visible change where it fitted)."""
         bitrate = self.config.bitrate
         if bitrate is not None:
-            if self._layered:
+            if self._layer_rate is not None:
                 return parameter_rate(bitrate), max(QUALITIES), 1.0
             return bitrate, max(QUALITIES), LEVEL_SHARE
         default = self.config.quality is None and layout == "personal"
@@ -217,8 +218,8 @@ class SendSession:
                                               self.config.redundancy if self.config.datagrams else None, self._finest)
                 self._keeper = RateKeeper(aim, fps, self.config.dead_zone)
             self._configure(quality)
-            if self._layered and self.config.bitrate is not None:
-                self.picture = PictureLayer(self._face, self.header, self.config.bitrate, self.sealed,
+            if self._layer_rate is not None:
+                self.picture = PictureLayer(self._face, self.header, self._layer_rate, self.sealed,
                                             self.config.datagrams)
             results = chain(first, results)
         for seq, result in enumerate(results):

@@ -188,7 +188,7 @@ def as_version(data: bytes, version: int) -> bytes:
     at += 0 if uv is BASE.uv else 8 * info["vertices"]
     faces = BASE.faces if info.get("topology") == "base" else np.frombuffer(raw, "<u2", 3 * info["faces"], at)
     at += 0 if faces is BASE.faces else 6 * info["faces"]
-    mesh_end, motion_end = at, at + 2 * k + 3 * c * k
+    motion_end = at + 2 * k + 3 * c * k
     if "picture" in info:  # version 7's numbers, after the motion basis, back into the JSON
         info["projection"] = np.frombuffer(raw, "<f8", 12, motion_end).reshape(3, 4).tolist()
         rings, points = info.pop("rings", None), info.pop("mouth_points", None)
@@ -205,7 +205,6 @@ def as_version(data: bytes, version: int) -> bytes:
     info.pop("uv", None), info.pop("topology", None)
     mesh = b"".join(np.ascontiguousarray(a, dtype=t).tobytes() for a, t in ((vertices, "<f4"), (uv, "<f4"),
                                                                             (faces, "<u2")))
-    assert mesh_end == at
     patterns = np.frombuffer(raw, "<i1", 3 * c * k, at + 2 * k)
     if version < 5:
         patterns = (patterns / PATTERN_SCALE).astype("<f2" if version == 4 else "<f4")
