@@ -18,8 +18,9 @@ A layer packet's payload (the picture packet of protocol/framing.py)::
     flags (1 byte: bit 0 key, bit 1 blocks only, bits 2-7 a counter mod 64)
     | the model's blocks (arithmetic code) | AV1 temporal unit without its temporal delimiter
 
-A payload of blocks only (no video: the last frame held) lets the sender hand a block back to
-the model between video frames, when the held frame no longer matches what moved.
+Between video frames the last one is held, carried by the model's motion (the view's ``carry``,
+given to :meth:`VideoLayer.draw`). A payload of blocks only (no video) lets the sender hand a
+block back to the model between video frames, when the carried frame no longer matches what moved.
 
 The blocks are coded as changes from the last packet's (from none at a key, where a receiver can
 start). Both ends run the same :class:`VideoLayer` on the same payloads, so they draw the same
@@ -159,12 +160,13 @@ def decode_blocks(before: np.ndarray, data: bytes) -> tuple[np.ndarray, int] | N
         return None
 
 
-def blend(model: np.ndarray, video: np.ndarray, chosen: np.ndarray, picture_size: tuple[int, int]) -> np.ndarray:
+def blend(model: np.ndarray, video: np.ndarray, chosen: np.ndarray, picture_size: tuple[int, int],
+          up: np.ndarray | None = None) -> np.ndarray:
     """The picture drawn: ``model`` ((H, W, 3) uint8, any size) in the blocks ``chosen`` (True, of a
-    picture of ``picture_size``), elsewhere the video frame ``video`` (any size, scaled up) with the
-    model's detail added where its coarse picture agrees with the video's; the two meet softly
-    over half a block."""
-    up, coarse, agree = _video_parts(model, video)
+    picture of ``picture_size``), elsewhere the video frame ``video`` (any size, scaled up; or
+    ``up``, the same already at the model's size, carried by the face) with the model's detail
+    added where its coarse picture agrees with the video's; the two meet softly over half a block."""
+    up, coarse, agree = _video_parts(model, video, up)
     out = np.empty_like(model)
     _mix(model, up, coarse, agree, _soft(chosen, picture_size, model.shape[1::-1]), out)
     return out
@@ -179,12 +181,14 @@ def _soft(chosen: np.ndarray, picture_size: tuple[int, int], size: tuple[int, in
     return cv2.resize(cv2.GaussianBlur(mask, (0, 0), quarter / 4), size, interpolation=cv2.INTER_LINEAR)
 
 
-def _video_parts(model: np.ndarray, video: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(the video scaled up to the model's picture, the model's picture at the video's size scaled
-    back, (H, W) float32 how far the two agree: 1 where the model's detail is added)."""
+def _video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(the video scaled up to the model's picture (``up`` if given), the model's picture at the
+    video's size scaled back, (H, W) float32 how far the two agree: 1 where the model's detail is added)."""
     h, w = model.shape[:2]
     small = video.shape[1::-1]
-    up = cv2.resize(video, (w, h), interpolation=cv2.INTER_LINEAR)
+    if up is None:
+        up = cv2.resize(video, (w, h), interpolation=cv2.INTER_LINEAR)
     coarse = cv2.resize(cv2.resize(model, small, interpolation=cv2.INTER_AREA), (w, h), interpolation=cv2.INTER_LINEAR)
     apart = cv2.GaussianBlur(_apart(up, coarse), (0, 0), w / small[0])
     return up, coarse, np.clip(1.5 - apart / 8.0, 0.0, 1.0)
@@ -224,11 +228,13 @@ def _mix(model, up, coarse, agree, soft, out) -> None:  # pragma: no cover - com
 
 
 def choose_blocks(model: np.ndarray, video: np.ndarray, frame: np.ndarray, before: np.ndarray,
-                  hysteresis: float = 1.5, favour: np.ndarray | None = None) -> np.ndarray:
+                  hysteresis: float = 1.5, favour: np.ndarray | None = None, up: np.ndarray | None = None
+                  ) -> np.ndarray:
     """The sender's choice: the blocks where the model's picture is nearer ``frame`` than the
-    video's, by ``hysteresis`` times to change a block's last choice ``before`` (a choice that
-    flickers costs bits and shows), the video's error counted ``favour`` times (per block)."""
-    up, coarse, agree = _video_parts(model, video)
+    video's (``up``: as :func:`blend` takes it), by ``hysteresis`` times to change a block's last
+    choice ``before`` (a choice that flickers costs bits and shows), the video's error counted
+    ``favour`` times (per block)."""
+    up, coarse, agree = _video_parts(model, video, up)
     sharpened = up + agree[..., None] * (model.astype(np.float32) - coarse)
     rows, columns = before.shape
     h, w = model.shape[:2]
@@ -249,15 +255,17 @@ class VideoLayer:
     blocks. The receiver reads payloads with :meth:`take`, the sender makes them with
     :meth:`make`; both draw with :meth:`draw`. A payload comes before its frame is drawn and
     holds from that frame on; frames before it, drawn later (a receiver's buffer), are drawn as
-    before it."""
+    before it. A held video frame is drawn as ``carry`` (given to :meth:`draw`) moves it from its
+    own frame to the one drawn: the face's motion since, which the parameters carry."""
 
     def __init__(self, picture_size: tuple[int, int]) -> None:
         self.picture_size = picture_size
         self._decoder: VideoDecoder | None = None
         self._none = np.zeros(blocks_of(picture_size), dtype=bool)  # no block the model's
         self._counter: int | None = None  # the last payload's; None: waiting for a key
-        #: (first frame, the video's frame or None for the model's picture alone, chosen blocks)
-        self._states: deque[tuple[int, np.ndarray | None, np.ndarray]] = deque(maxlen=HELD)
+        #: (first frame, the video's frame or None for the model's picture alone, chosen blocks,
+        #: the frame the video's frame shows)
+        self._states: deque[tuple[int, np.ndarray | None, np.ndarray, int]] = deque(maxlen=HELD)
 
     def take(self, seq: int, payload: bytes) -> bool:
         """Read the payload of frame ``seq``; False if it cannot be used (damaged, or no key since a
@@ -273,25 +281,27 @@ class VideoLayer:
         frame = self.frame if only else self._decode(payload[1 + blocks[1]:], key)
         if frame is None:
             return self._lost(seq)
-        self._hold(seq, frame, blocks[0], counter)
+        self._hold(seq, frame, blocks[0], counter, self._since if only else seq)
         return True
 
     def make(self, seq: int, video: bytes | None, key: bool,
-             choose: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> bytes | None:
+             choose: Callable[[np.ndarray, int, np.ndarray], np.ndarray]) -> bytes | None:
         """The payload of frame ``seq`` for the sender's temporal unit ``video`` (None: blocks only,
         the last frame held), taken as :meth:`take` takes it; its blocks are ``choose(the decoded
-        frame, the last choice)``. None (nothing to send) for blocks only that change nothing."""
+        frame, the frame it shows, the last choice)``. None (nothing to send) for blocks only that
+        change nothing."""
         counter = 0 if self._counter is None else (self._counter + 1) % COUNTER
         frame = self.frame if video is None else self._decode(video, key)
         if frame is None:
             raise ValueError("no frame to hold" if video is None else "the layer's own video did not decode")
-        chosen = choose(frame, self.chosen)
+        since = self._since if video is None else seq
+        chosen = choose(frame, since, self.chosen)
         if video is None and np.array_equal(chosen, self.chosen):
             return None
         start = self._none if key else self.chosen
         flags = int(key) | (BLOCKS_ONLY if video is None else 0) | counter << 2
         data = bytes([flags]) + encode_blocks(start, chosen) + (video or b"")
-        self._hold(seq, frame, chosen, counter)
+        self._hold(seq, frame, chosen, counter, since)
         return data
 
     @property
@@ -304,25 +314,33 @@ class VideoLayer:
         """The video's last frame; None: the model's picture alone."""
         return self._states[-1][1] if self._states else None
 
-    def draw(self, seq: int, model: np.ndarray) -> np.ndarray:
-        """The picture of frame ``seq`` whose model's picture is ``model``."""
+    @property
+    def _since(self) -> int:
+        return self._states[-1][3] if self._states else -1
+
+    def draw(self, seq: int, model: np.ndarray, carry: Callable[[np.ndarray, int], np.ndarray] | None = None
+             ) -> np.ndarray:
+        """The picture of frame ``seq`` whose model's picture is ``model``; ``carry(video frame, the
+        frame it shows)``: the video frame at the model's size, moved to frame ``seq`` (None: held still)."""
         while len(self._states) > 1 and self._states[1][0] <= seq:
             self._states.popleft()
         if not self._states or self._states[0][0] > seq:
             return model
-        _, frame, chosen = self._states[0]
-        return model if frame is None else blend(model, frame, chosen, self.picture_size)
+        _, frame, chosen, since = self._states[0]
+        if frame is None:
+            return model
+        return blend(model, frame, chosen, self.picture_size, None if carry is None else carry(frame, since))
 
     def _decode(self, video: bytes, key: bool) -> np.ndarray | None:
         if key or self._decoder is None:
             self._decoder = VideoDecoder(video_size(self.picture_size, max(self.picture_size)))
         return self._decoder.decode(video)
 
-    def _hold(self, seq: int, frame: np.ndarray | None, chosen: np.ndarray, counter: int | None) -> None:
+    def _hold(self, seq: int, frame: np.ndarray | None, chosen: np.ndarray, counter: int | None, since: int) -> None:
         self._counter = counter
-        self._states.append((seq, frame, chosen))
+        self._states.append((seq, frame, chosen, since))
 
     def _lost(self, seq: int) -> bool:
         self._decoder = None
-        self._hold(seq, None, self._none, None)
+        self._hold(seq, None, self._none, None, seq)
         return False

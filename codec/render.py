@@ -186,6 +186,13 @@ class Renderer:
         self._texture[y:y + h, x:x + w] = image
         self._texture[:, -1], self._texture[-1] = self._texture[:, -2], self._texture[-2]  # the repeats
 
+    def retexture(self, uv, texture) -> None:
+        """Texture the mesh by ``texture`` at ``uv`` from the next frame on, as the constructor's (a
+        mesh textured by a picture that changes: the picture layer's video, carried by the face)."""
+        if texture is None:
+            raise ValueError("retexture needs a texture")
+        self._uv, self._texture = self._parse_texture(uv, texture)
+
     def set_background(self, background) -> None:
         """Draw over ``background`` from the next frame on: as the constructor's (a moving camera's picture)."""
         self._background = self._parse_background(background)

@@ -5,13 +5,15 @@ textured face alone (FaceView); "picture", the person's whole reference
 picture warped by the moving face (PictureView, codec/picture.py).
 """
 
+from collections import deque
+
 import numpy as np
 
 from facedeform.codec.camera import Camera
 from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, Deformer
 from facedeform.codec.eyelids import Eyelids
 from facedeform.codec.face_model import BaseFace, mouth_vertices
-from facedeform.codec.frame_video import VideoLayer
+from facedeform.codec.frame_video import HELD, VideoLayer
 from facedeform.codec.mouth_interior import LOWER_LIP, UPPER_LIP
 from facedeform.codec.picture import SceneMesh, face_texture, frame_placement, global_matrix
 from facedeform.codec.render import UNLIT, Renderer
@@ -155,6 +157,12 @@ class PictureView(FaceView):
         self._lids = Eyelids(face, self._scene.rest_pixels, self._picture_size)
         self._shut: tuple[float, ...] = (0.0, 0.0)  # how far each eye is closed (codec/eyelids.py)
         self._open = 1.0  # how open the mouth is, against the person's open mouth (codec/mouth_interior.py)
+        #: (frame, scene vertex positions, global motion) of the last frames drawn: where the picture
+        #: layer's video frames were, to carry them (:meth:`carry`)
+        self._drawn: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(maxlen=HELD)
+        self._carrier: Renderer | None = None  # the scene textured by a video frame
+        self._carried: tuple[np.ndarray, int, np.ndarray] | None = None  # (video frame, its frame, scaled up)
+        self._carried_motion: np.ndarray | None = None  # the carrier's background's motion
 
     def render(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None) -> np.ndarray:
         """The picture of frame ``seq`` (None: the one after the last), the picture layer's as it
@@ -162,7 +170,7 @@ class PictureView(FaceView):
         instead of the one the parameters' expression deforms (the expression benchmark's oracle,
         the tracked face itself), placed by the parameters' head pose and global motion."""
         model = self.model_picture(params, seq, shape)
-        return self.layer.draw(self._seq, model)
+        return self.layer.draw(self._seq, model, self.carry)
 
     def model_picture(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None
                       ) -> np.ndarray:
@@ -182,7 +190,40 @@ class PictureView(FaceView):
             self._open = opening
             self._patch(0, self._scene.mouth_row, interior.drawn(opening))
         self._positions = positions
+        self._drawn.append((self._seq, positions, still))
         return self._renderer.render(positions * self._scale, self._camera)[0]
+
+    def carry(self, video: np.ndarray, since: int) -> np.ndarray:
+        """The picture layer's video frame ``video`` (any size), which shows frame ``since``, at this
+        view's size and moved to the frame last drawn: the scene mesh drawn where it is now, textured
+        by the video where the mesh was then, and past the rings the video moved by the change of
+        the global motion. The model's motion carries the video between its frames (a held frame no
+        longer lags a turning head or a moving mouth); at frame ``since`` itself it is the video scaled up."""
+        import cv2
+
+        w, h = self.size
+        _, now, now_motion = self._drawn[-1]
+        # (a frame not drawn here, its parameters lost: the video as it is)
+        _, then, then_motion = next((d for d in reversed(self._drawn) if d[0] == since), self._drawn[-1])
+        if self._carried is None or self._carried[0] is not video or self._carried[1] != since:
+            up = cv2.resize(video, (w, h), interpolation=cv2.INTER_LINEAR)
+            pixels = (then * self._scale)[:, :2] * [1.0, -1.0]
+            uv = np.column_stack([pixels[:, 0] / w, 1.0 - pixels[:, 1] / h])
+            if self._carrier is None:
+                self._carrier = Renderer(self._scene.triangles, size=self.size, material=UNLIT, lights=(),
+                                         background=up, uv=uv, texture=up)  # the video's own mouth
+            else:
+                self._carrier.retexture(uv, up)
+            self._carried, self._carried_motion = (video, since, up), None
+        up, carrier = self._carried[2], self._carrier
+        if then is now or carrier is None:  # the video's own frame: nothing to carry
+            return up
+        motion = _between(then_motion, now_motion, np.diag([w / self._picture_size[0], h / self._picture_size[1]]))
+        if self._carried_motion is None or not np.array_equal(motion, self._carried_motion):
+            self._carried_motion = motion
+            carrier.set_background(up if np.array_equal(motion, _IDENTITY) else cv2.warpAffine(
+                up, motion, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+        return carrier.render(now * self._scale, self._camera)[0]
 
     @property
     def mouth_box(self) -> tuple[float, float, float, float]:
@@ -228,6 +269,25 @@ class PictureView(FaceView):
         scaled = np.diag([w / self._picture_size[0], h / self._picture_size[1]]) @ still
         self._renderer.set_background(cv2.warpAffine(self._picture, scaled, (w, h), flags=cv2.INTER_LINEAR,
                                                      borderMode=cv2.BORDER_REPLICATE))
+
+
+_IDENTITY = np.eye(2, 3)
+
+
+def _between(then: np.ndarray | None, now: np.ndarray | None, scale: np.ndarray) -> np.ndarray:
+    """(2, 3) pixel map from a frame whose global motion was ``then`` to one whose is ``now`` (each a
+    (2, 3) map from the reference picture, None: none), in pixels ``scale`` (2, 2) times the picture's."""
+    if (then is None and now is None) or (then is not None and now is not None and np.array_equal(then, now)):
+        return _IDENTITY
+    def square(m: np.ndarray | None) -> np.ndarray:
+        full = np.eye(3)
+        if m is not None:
+            full[:2] = m
+        full[:2, :2] = scale @ full[:2, :2] @ np.linalg.inv(scale)
+        full[:2, 2] = scale @ full[:2, 2]
+        return full
+
+    return (square(now) @ np.linalg.inv(square(then)))[:2]
 
 
 def _picture_camera(size: tuple[int, int]) -> Camera:

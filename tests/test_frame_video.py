@@ -61,7 +61,7 @@ def test_both_ends_of_a_video_hold_the_same_frames_and_blocks():
     encoder = VideoEncoder((64, 64), 20_000, 25)
     model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
     for seq, frame in enumerate(frames(6)):
-        def choose(decoded, before, odd=seq % 2):
+        def choose(decoded, since, before, odd=seq % 2):
             return np.eye(*before.shape, dtype=bool) if odd else before
 
         data = sender.make(seq, encoder.encode(frame, key=seq == 0), seq == 0, choose)
@@ -75,7 +75,7 @@ def test_a_gap_in_the_counter_draws_the_model_alone_until_the_next_key():
     sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
     encoder = VideoEncoder((64, 64), 20_000, 25)
     model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
-    keep = lambda decoded, before: before  # noqa: E731
+    keep = lambda decoded, since, before: before  # noqa: E731
     payloads = [sender.make(seq, encoder.encode(f, key=seq in (0, 4)), seq in (0, 4), keep)
                 for seq, f in enumerate(frames(6))]
     assert receiver.take(0, payloads[0]) and receiver.take(1, payloads[1])
@@ -90,8 +90,8 @@ def test_blocks_only_hand_blocks_to_the_model_over_the_held_frame():
     sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
     encoder = VideoEncoder((64, 64), 20_000, 25)
     model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
-    none = lambda decoded, before: np.zeros_like(before)  # noqa: E731
-    every = lambda held, before: np.ones_like(before)  # noqa: E731
+    none = lambda decoded, since, before: np.zeros_like(before)  # noqa: E731
+    every = lambda held, since, before: np.ones_like(before)  # noqa: E731
     assert receiver.take(0, sender.make(0, encoder.encode(frames(1)[0], key=True), True, none))
     assert sender.make(1, None, False, none) is None  # nothing changes: nothing to send
     data = sender.make(1, None, False, every)

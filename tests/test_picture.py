@@ -119,6 +119,24 @@ def test_the_head_moves_in_the_picture_and_the_background_stays_exactly():
     np.testing.assert_array_equal(moved[:, :5], face.picture.image[:, :5])
 
 
+def test_the_layer_video_frame_is_carried_with_the_face_and_the_camera():
+    face = a_face_with_a_picture()
+    names = NAMES + GLOBAL_PARAMS
+    view = PictureView(header(face, names), face, (200, 160))
+    first = view.model_picture(np.zeros(len(names)), 0)
+    video = cv2.resize(first, (100, 80), interpolation=cv2.INTER_AREA)  # the layer's small frame of frame 0
+    held = cv2.resize(video, (200, 160), interpolation=cv2.INTER_LINEAR)
+    assert np.abs(view.carry(video, 0).astype(int) - held).max() <= 1  # at its own frame: the video scaled up
+
+    def error(a, b):
+        return np.abs(a.astype(int) - b).mean()
+
+    for params in ([0, 0, 8, 0, 0.1, 0, 0, 0, 0, 0, 0],  # the head turns and moves
+                   [0, 0, 0, 0, 0, 0, 0, 0.1, 0.05, 0.05, 2.0]):  # the camera moves
+        moved = view.model_picture(np.array(params, dtype=float), 1)
+        assert error(view.carry(video, 0), moved) < 0.5 * error(held, moved)
+
+
 def test_size_scales_the_picture_and_the_projection():
     face = a_face_with_a_picture()
     full = PictureView(header(face), face, (200, 160)).render(np.zeros(len(NAMES)))
