@@ -93,7 +93,9 @@ class SendConfig:
 #: With the picture layer, the parameters aim at this share of the rate, and at least PARAMETER_FLOOR bit/s,
 #: but at most PARAMETER_CAP of it: their level is chosen once, from the call's first second, and livelier
 #: talking later costs more (on the dev clips up to 26 % over a 2-second window when they aimed at all of it).
-PARAMETER_SHARE, PARAMETER_FLOOR, PARAMETER_CAP = 0.2, 1600.0, 0.75
+#: A floor of 1.2 kbit/s instead of 1.6, once the model carried the video between its frames, gave the nine
+#: dev clips +0.11 dB at 4 kbit/s (-0.11 to +0.53) and +0.23 dB on the 5th percentile (docs/picture_layer.md).
+PARAMETER_SHARE, PARAMETER_FLOOR, PARAMETER_CAP = 0.2, 1200.0, 0.75
 
 
 def parameter_rate(bitrate: float) -> float:
