@@ -161,7 +161,7 @@ class PictureView(FaceView):
         #: layer's video frames were, to carry them (:meth:`carry`)
         self._drawn: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(maxlen=HELD)
         self._carrier: Renderer | None = None  # the scene textured by a video frame
-        self._carried: tuple[np.ndarray, int, np.ndarray] | None = None  # (video frame, its frame, scaled up)
+        self._carried: tuple[np.ndarray, int] | None = None  # (the video frame it is textured by, its frame)
         self._carried_motion: np.ndarray | None = None  # the carrier's background's motion
 
     def render(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None) -> np.ndarray:
@@ -198,32 +198,34 @@ class PictureView(FaceView):
         view's size and moved to the frame last drawn: the scene mesh drawn where it is now, textured
         by the video where the mesh was then, and past the rings the video moved by the change of
         the global motion. The model's motion carries the video between its frames (a held frame no
-        longer lags a turning head or a moving mouth); at frame ``since`` itself it is the video scaled up."""
+        longer lags a turning head or a moving mouth); at frame ``since`` itself it is the video scaled
+        up. Drawn at the video's own size and then scaled up: the video has no finer detail to move."""
         import cv2
 
-        w, h = self.size
+        (pw, ph), (vw, vh) = self._picture_size, video.shape[1::-1]
         _, now, now_motion = self._drawn[-1]
         # (a frame not drawn here, its parameters lost: the video as it is)
         _, then, then_motion = next((d for d in reversed(self._drawn) if d[0] == since), self._drawn[-1])
-        if self._carried is None or self._carried[0] is not video or self._carried[1] != since:
-            up = cv2.resize(video, (w, h), interpolation=cv2.INTER_LINEAR)
-            pixels = (then * self._scale)[:, :2] * [1.0, -1.0]
-            uv = np.column_stack([pixels[:, 0] / w, 1.0 - pixels[:, 1] / h])
-            if self._carrier is None:
-                self._carrier = Renderer(self._scene.triangles, size=self.size, material=UNLIT, lights=(),
-                                         background=up, uv=uv, texture=up)  # the video's own mouth
+        if then is now:  # the video's own frame: nothing to carry
+            return cv2.resize(video, self.size, interpolation=cv2.INTER_LINEAR)
+        scale = np.array([vw / pw, vh / ph, np.sqrt(vw * vh / (pw * ph))])
+        carrier = self._carrier
+        if carrier is None or self._carried is None or self._carried[0] is not video or self._carried[1] != since:
+            pixels = (then * scale)[:, :2] * [1.0, -1.0]
+            uv = np.column_stack([pixels[:, 0] / vw, 1.0 - pixels[:, 1] / vh])
+            if carrier is None or carrier.size != (vw, vh):
+                carrier = Renderer(self._scene.triangles, size=(vw, vh), material=UNLIT, lights=(),
+                                   background=video, uv=uv, texture=video)  # the video's own mouth
             else:
-                self._carrier.retexture(uv, up)
-            self._carried, self._carried_motion = (video, since, up), None
-        up, carrier = self._carried[2], self._carrier
-        if then is now or carrier is None:  # the video's own frame: nothing to carry
-            return up
-        motion = _between(then_motion, now_motion, np.diag([w / self._picture_size[0], h / self._picture_size[1]]))
+                carrier.retexture(uv, video)
+            self._carrier, self._carried, self._carried_motion = carrier, (video, since), None
+        motion = _between(then_motion, now_motion, np.diag(scale[:2]))
         if self._carried_motion is None or not np.array_equal(motion, self._carried_motion):
             self._carried_motion = motion
-            carrier.set_background(up if np.array_equal(motion, _IDENTITY) else cv2.warpAffine(
-                up, motion, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
-        return carrier.render(now * self._scale, self._camera)[0]
+            carrier.set_background(video if np.array_equal(motion, _IDENTITY) else cv2.warpAffine(
+                video, motion, (vw, vh), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+        carried = carrier.render(now * scale, _picture_camera((vw, vh)))[0]
+        return cv2.resize(carried, self.size, interpolation=cv2.INTER_LINEAR)
 
     @property
     def mouth_box(self) -> tuple[float, float, float, float]:
