@@ -412,6 +412,25 @@ def test_the_sender_measures_a_known_global_motion():
     np.testing.assert_allclose(measure.measure(big, landmarks * 2), got, atol=0.01)
 
 
+def test_shoulders_that_move_on_a_plain_wall_are_not_a_moving_camera():
+    """The bundled clip's case: a plain wall, and corners only on the speaker's shoulders (beside
+    and below the face): they move with the person, so the camera stays still."""
+    size = 256
+    image = np.full((size, size, 3), 120, np.uint8)
+    rng = np.random.default_rng(5)
+    for _ in range(200):  # the shoulders: blobs along the bottom, wider than the face
+        centre = (int(rng.integers(0, size)), int(rng.integers(int(0.8 * size), size)))
+        cv2.circle(image, centre, int(rng.integers(2, 6)), tuple(int(v) for v in rng.integers(0, 255, 3)), -1)
+    place = Placement(size * 0.3, np.eye(3), np.array([size / 2, -0.4 * size, 0.0]))
+    face = replace(BASE, picture=ReferencePicture(image, place.matrix()))
+    measure = GlobalMotion(face.picture, face.vertices)
+    landmarks = landmarks_of(face, measure.reference)
+    bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    body = np.float32([[1, 0, 4], [0, 1, -3]])  # the body shifts, the wall stays
+    moved = cv2.warpAffine(bgr, body, (size, size), borderMode=cv2.BORDER_REPLICATE)
+    np.testing.assert_array_equal(measure.measure(moved, landmarks), np.zeros(4))
+
+
 def test_a_large_picture_is_followed_at_a_fraction_of_its_size():
     """A 1920-pixel picture is followed at half size, its motion given in its own pixels: within
     half a pixel (a quarter of a working one) at its corners; still is still."""
