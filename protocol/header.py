@@ -15,11 +15,12 @@ from facedeform.common.errors import BitstreamError
 from facedeform.common.limits import MAX_SIDE
 from facedeform.protocol.basis import basis_matrices
 from facedeform.protocol.framing import need_varint, varint
+from facedeform.protocol.layouts import shipped, shipped_index
 from facedeform.protocol.quantise import QUALITIES, dequantise, steps_for
 
 MAGIC = b"FD"
 #: The one version written and read; a decoder refuses any other (docs/bitstream.md, "Evolution").
-VERSION = 10
+VERSION = 11
 MAX_NAMES = 64
 MAX_NAME = 32
 MAX_MODEL = 16 << 20  # bytes of pre-shared face model carried in-band
@@ -32,6 +33,9 @@ _FLAG_F3_WITH_JAW, _FLAG_STATIC, _FLAG_BASIS = 1, 2, 4
 #: The steps are the quality level's (protocol.quantise.steps_for) and are not written: 8 bytes a
 #: parameter, half of a speaker's own layout's header (405 -> 213 bytes).
 _FLAG_LEVEL_STEPS = 8
+#: The names and the basis are a layout every package holds (protocol.layouts), named by its index
+#: in one byte: the default layout's header 1,825 -> 65 bytes.
+_FLAG_SHIPPED = 16
 ID_BYTES = 4  # of a header's id, which every keyframe packet carries
 
 
@@ -120,18 +124,22 @@ def _level_steps(h: Header) -> bool:
 
 
 def encode_header(h: Header) -> bytes:
-    level = _level_steps(h)
-    flags = (_FLAG_F3_WITH_JAW * h.f3_with_jaw | _FLAG_STATIC * h.skip_static | _FLAG_BASIS * (h.basis is not None)
-             | _FLAG_LEVEL_STEPS * level)
+    level, held = _level_steps(h), shipped_index(h.names, h.basis)
+    written = h.basis is not None and held is None
+    flags = (_FLAG_F3_WITH_JAW * h.f3_with_jaw | _FLAG_STATIC * h.skip_static | _FLAG_BASIS * written
+             | _FLAG_LEVEL_STEPS * level | _FLAG_SHIPPED * (held is not None))
     out = bytearray(MAGIC + bytes([VERSION, flags, h.quality, h.key_interval, h.divisor, RULES.index(h.rule)]))
     out += varint(round(h.fps * 1000)) + varint(h.width) + varint(h.height)
     out += bytes.fromhex(h.face_id) + varint(h.model_size)
-    out.append(len(h.names))
-    for name in h.names:
-        out += bytes([len(name)]) + name.encode("ascii")
+    if held is not None:
+        out.append(held)
+    else:
+        out.append(len(h.names))
+        for name in h.names:
+            out += bytes([len(name)]) + name.encode("ascii")
     if not level:
         out += struct.pack(f">{len(h.names)}d", *h.steps)
-    if h.basis is not None:
+    if written and h.basis is not None:
         out += h.basis.tobytes()
     return bytes(out)
 
@@ -145,7 +153,8 @@ def parse_header(body: bytes) -> Header:
     flags, quality, key_interval, divisor, rule = body[3:8]
     if rule >= len(RULES):
         raise BitstreamError(f"unknown deformation rule {rule}")
-    if flags & ~(_FLAG_F3_WITH_JAW | _FLAG_STATIC | _FLAG_BASIS | _FLAG_LEVEL_STEPS):
+    if flags & ~(_FLAG_F3_WITH_JAW | _FLAG_STATIC | _FLAG_BASIS | _FLAG_LEVEL_STEPS | _FLAG_SHIPPED) or (
+            flags & _FLAG_SHIPPED and flags & _FLAG_BASIS):
         raise BitstreamError(f"unknown header flags {flags:#04x}")
     fps_milli, pos = _varint(body, 8, 1_000_000)
     width, pos = _varint(body, pos, MAX_SIDE)
@@ -154,6 +163,34 @@ def parse_header(body: bytes) -> Header:
         raise BitstreamError("stream header cut short")
     face_id = body[pos:pos + 32].hex()
     model_size, pos = _varint(body, pos + 32, MAX_MODEL)
+    basis: np.ndarray | None = None
+    if flags & _FLAG_SHIPPED:
+        index, table = _byte(body, pos), shipped()
+        if index >= len(table):
+            raise BitstreamError(f"stream header names layout {index}, which this decoder does not hold")
+        names, basis = list(table[index][0]), table[index][1]
+        count, pos = len(names), pos + 1
+    else:
+        names, count, pos = _names(body, pos)
+    basis_bytes = count * count if flags & _FLAG_BASIS else 0
+    step_bytes = 0 if flags & _FLAG_LEVEL_STEPS else 8 * count
+    if len(body) != pos + step_bytes + basis_bytes:
+        raise BitstreamError("stream header length does not match its layout")
+    if step_bytes:
+        steps = np.array(struct.unpack(f">{count}d", body[pos:pos + step_bytes]))
+    elif quality in QUALITIES:
+        steps = steps_for(tuple(names), quality)
+    else:
+        raise BitstreamError(f"stream header takes the steps of quality level {quality}, which is none")
+    if basis_bytes:
+        basis = np.frombuffer(body, dtype=np.int8, count=basis_bytes, offset=pos + step_bytes).reshape(count, count)
+    return Header(fps_milli / 1000, tuple(names), steps, face_id, bool(flags & _FLAG_F3_WITH_JAW), quality,
+                  key_interval, divisor, bool(flags & _FLAG_STATIC), model_size, basis,
+                  width, height, RULES[rule])
+
+
+def _names(body: bytes, pos: int) -> tuple[list[str], int, int]:
+    """(the parameter names written from ``pos``, their count, the position after them)."""
     names = []
     count = _byte(body, pos)
     pos += 1
@@ -168,22 +205,7 @@ def parse_header(body: bytes) -> Header:
         except UnicodeDecodeError:
             raise BitstreamError("parameter name is not ASCII") from None
         pos += 1 + n
-    basis_bytes = count * count if flags & _FLAG_BASIS else 0
-    step_bytes = 0 if flags & _FLAG_LEVEL_STEPS else 8 * count
-    if len(body) != pos + step_bytes + basis_bytes:
-        raise BitstreamError("stream header length does not match its layout")
-    if step_bytes:
-        steps = np.array(struct.unpack(f">{count}d", body[pos:pos + step_bytes]))
-    elif quality in QUALITIES:
-        steps = steps_for(tuple(names), quality)
-    else:
-        raise BitstreamError(f"stream header takes the steps of quality level {quality}, which is none")
-    basis = None
-    if basis_bytes:
-        basis = np.frombuffer(body, dtype=np.int8, count=basis_bytes, offset=pos + step_bytes).reshape(count, count)
-    return Header(fps_milli / 1000, tuple(names), steps, face_id, bool(flags & _FLAG_F3_WITH_JAW), quality,
-                  key_interval, divisor, bool(flags & _FLAG_STATIC), model_size, basis,
-                  width, height, RULES[rule])
+    return names, count, pos
 
 
 def _varint(body: bytes, pos: int, limit: int) -> tuple[int, int]:

@@ -8,12 +8,11 @@ a total of 16 so the data still rules after a second) and what they save:
 benchmarks/train_priors.py and docs/bitstream.md.
 """
 
-import hashlib
 import json
 from functools import cache
 from pathlib import Path
 
-from facedeform.common.errors import FdError
+from facedeform.common.packaged import read_packaged
 from facedeform.protocol.arith import AdaptiveBit
 from facedeform.protocol.entropy import NewBit
 from facedeform.protocol.header import Header
@@ -27,13 +26,7 @@ PATH = Path(__file__).with_name("priors.json")
 def tables() -> dict[str, dict[str, list[int]]]:
     """{quality level: {model key name: [n0, n1]}}, checked against :data:`SHA256`; FdError (one
     line from the tools) if the installed file is missing or another."""
-    try:
-        data = PATH.read_bytes()
-    except OSError as exc:
-        raise FdError(f"cannot read {PATH}: {exc.strerror} (reinstall facedeform)") from None
-    if hashlib.sha256(data).hexdigest() != SHA256:
-        raise FdError(f"{PATH} is not the entropy table of this stream format (reinstall facedeform)")
-    return json.loads(data)
+    return json.loads(read_packaged(PATH, SHA256, "the entropy table of this stream format"))
 
 
 def key_name(key: tuple) -> str:

@@ -17,6 +17,7 @@ from facedeform.common.limits import MAX_SIDE
 from facedeform.common.npz import NpzAppender
 from facedeform.common.stages import Source
 from facedeform.protocol.basis import principal_basis
+from facedeform.protocol.layouts import shipped_basis
 from facedeform.protocol.secure import SecureSealer
 from facedeform.protocol.stream import (
     DEFAULT_QUALITY,
@@ -84,9 +85,12 @@ def first_frames(fps: float, results: list[FrameAnalysis]) -> list[tuple[np.ndar
 
 def first_basis(names: tuple[str, ...], fps: float, frames: Sequence[tuple[np.ndarray, bool]]) -> np.ndarray | None:
     """The coding basis fd-send sends for a call that starts with ``frames`` ((parameters, face
-    seen), as :func:`first_frames` gives them or a dump holds them): from its first second's frames
-    with a face."""
-    return sample_basis(names, [params for params, seen in frames[:first_second(fps)] if seen])
+    seen), as :func:`first_frames` gives them or a dump holds them): the one every package holds
+    for the layout (``protocol.layouts``: as good on speakers it was not trained on, and one byte
+    in the header), else from its first second's frames with a face."""
+    held = shipped_basis(names)
+    return held if held is not None else sample_basis(
+        names, [params for params, seen in frames[:first_second(fps)] if seen])
 
 
 def read_dump(path, layout: tuple[str, ...] | None = None) -> tuple[tuple[str, ...], float, np.ndarray, np.ndarray]:

@@ -15,6 +15,7 @@ from facedeform.common.limits import MAX_SIDE
 from facedeform.protocol.basis import SCALE
 from facedeform.protocol.framing import END, HEADER, SYNC, Delta, build, varint
 from facedeform.protocol.header import MAX_MODEL, VERSION, encode_header, parse_header
+from facedeform.protocol.layouts import shipped, shipped_basis
 from facedeform.protocol.quantise import QUALITIES, dequantise, hold_or_round, quantise
 from facedeform.protocol.stream import (
     Damage,
@@ -327,6 +328,20 @@ def test_foreign_input_raises_bitstream_error(data, message):
         dec.close()
 
 
+def test_a_layout_every_package_holds_is_named_by_one_byte():
+    for names, basis in shipped():
+        h = Header(25.0, names, steps_for(names), FACE, basis=basis.copy(), skip_static=True)
+        body = encode_header(h)
+        assert len(body) < 64 and parse_header(body) == h
+        np.testing.assert_array_equal(parse_header(body).basis, basis)
+        other = basis.copy()
+        other[[0, 1]] = other[[1, 0]]  # the same names with another basis: written out
+        assert len(encode_header(replace(h, basis=other))) > len(names) ** 2
+        assert parse_header(encode_header(replace(h, basis=other))) == replace(h, basis=other)
+    mouth = next(names for names, _ in shipped() if len(names) == 39)
+    assert len(encode_header(Header(25.0, mouth, steps_for(mouth), FACE, basis=shipped_basis(mouth)))) <= 64
+
+
 def test_hostile_header_is_refused_before_allocation():
     body = bytearray(encode_header(header()))
     model_at = 2 + 6 + len(varint(25000)) + 2 + 32  # magic, version and five bytes, fps, width, height, face id
@@ -469,7 +484,9 @@ def header_bytes_with(h: Header, at: int, value: bytes, length: int = 1) -> byte
 
 @pytest.mark.parametrize("patch, message", [
     (lambda h: header_bytes_with(h, 7, b"\x02"), "unknown deformation rule 2"),
-    (lambda h: header_bytes_with(h, 3, b"\x10"), "unknown header flags"),
+    (lambda h: header_bytes_with(h, 3, b"\x20"), "unknown header flags"),
+    (lambda h: header_bytes_with(h, 3, b"\x14"), "unknown header flags"),  # a held layout's basis written too
+    (lambda h: header_bytes_with(h, 3, b"\x10"), "layout 13, which this decoder does not hold"),  # 13 names
     (lambda h: header_bytes_with(h, 8 + len(varint(25000)), b"\x81\x80\x01"), "over its limit"),  # width 16385
     (lambda h: header_bytes_with(CUSTOM, len(encode_header(CUSTOM)) - 8, np.float64(1e306).byteswap().tobytes(), 8),
      "quantiser steps"),
