@@ -43,7 +43,11 @@ PICTURE_PIECE = 1024  # bytes of a picture layer's payload per packet (and datag
 #: datagrams, 94.3 % of frames were good with one copy, 94.7 % with two, 98.1 % with three
 #: (docs/bitstream.md, "Bursts"), for 150, 214 and 264 bits a frame.
 COPIES = 3
-HEADER_EAGER, HEADER_EVERY = 10, 30  # keyframes: the header goes again before the first 10, then every 30th
+#: Keyframes: the header goes again before the first HEADER_EAGER, then every so many that its repeats
+#: cost at most REPEAT_BITS a keyframe (200 bit/s with a keyframe every 0.4 s, fd-send over UDP), and at
+#: least every HEADER_EVERY-th: the default layout's 49-byte header every 6th keyframe (a late joiner
+#: waits 2.4 s), a speaker's own 213-byte one every 24th (9.6 s), a kilobyte header every 30th (12 s).
+HEADER_EAGER, HEADER_EVERY, REPEAT_BITS = 10, 30, 80
 _MAX_INDEX = 1 << 30  # quantised values beyond this are a caller's bug (NaN, wrong units)
 MAX_DEAD_ZONE = 4.0  # steps: beyond this a coarser quality level costs fewer bits for the same error
 
@@ -193,18 +197,21 @@ class Datagrams:
     :meth:`protocol.decoder.PacketDecoder.packets`), so up to ``copies`` lost
     datagrams in a row cost no frame. Late join: the header
     packet goes again before each of the first ``eager`` keyframes after the
-    first and then before every ``header_every``-th (0: never), so a receiver
+    first and then before every ``header_every``-th (0: never; None: as often as
+    REPEAT_BITS a keyframe pays for, at least every HEADER_EVERY-th), so a receiver
     started mid-call renders from the keyframe after it; the end mark goes
     twice. With a ``sealer`` every datagram is sealed, and the preamble goes
     again with the header. Model chunks are not repeated: a late receiver
     draws the face it has. What each costs is in docs/bitstream.md, "Datagrams".
     """
 
-    def __init__(self, header_packet: bytes, copies: int = COPIES, header_every: int = HEADER_EVERY,
+    def __init__(self, header_packet: bytes, copies: int = COPIES, header_every: int | None = None,
                  eager: int = HEADER_EAGER, sealer=None) -> None:
         if not 0 <= copies <= MAX_REDUNDANCY:
             raise BitstreamError(f"redundancy must be 0-{MAX_REDUNDANCY} packets, not {copies!r}")
         self._header, self._copies, self._sealer = header_packet, copies, sealer
+        if header_every is None:
+            header_every = min(HEADER_EVERY, max(1, -(-8 * len(header_packet) // REPEAT_BITS)))
         self._every, self._eager = header_every, eager
         self._recent: list[bytes] = []  # frames packets since the last keyframe, the newest last
         self._keys = 0

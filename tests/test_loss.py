@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from facedeform.common.errors import InputError
-from facedeform.protocol.encoder import COPIES
+from facedeform.protocol.encoder import COPIES, HEADER_EVERY
 from facedeform.protocol.secure import SecureSealer
 from facedeform.protocol.secure_stream import SecureDatagramDecoder
 from facedeform.protocol.stream import DatagramDecoder, Datagrams, Frame, Header, PacketEncoder
@@ -183,6 +183,15 @@ def test_the_header_goes_again_before_the_first_keyframes_then_every_nth():
     keys = [i for i, d in enumerate(out) if header().ident in d]  # keyframe packets name their header
     assert len(keys) == 12
     assert [i for i, d in enumerate(out) if d == head[0]] == [0] + [keys[n] - 1 for n in (1, 2, 5, 10)]
+
+
+def test_a_small_header_goes_again_more_often_than_a_large_one():
+    """By default the repeats cost at most 80 bits a keyframe (REPEAT_BITS): a header of 56 bytes (fd-send's
+    default layout) every 6th keyframe, one of a kilobyte or more every HEADER_EVERY-th."""
+    assert Datagrams(bytes(56)).repeat_rate(0.4) == 8 * 56 / (6 * 0.4)
+    assert Datagrams(bytes(2000)).repeat_rate(0.4) == 8 * 2000 / (HEADER_EVERY * 0.4)
+    assert Datagrams(bytes(5)).repeat_rate(1.0) == 8 * 5 / 1.0  # never more often than every keyframe
+    assert Datagrams(bytes(233)).repeat_rate(1.0) == 8 * 233 / 24  # a speaker's own layout: 1864 / 80 bits
 
 
 def free_udp_port() -> int:
