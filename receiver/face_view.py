@@ -157,10 +157,6 @@ class PictureView(FaceView):
         self._lids = Eyelids(face, self._scene.rest_pixels, self._picture_size)
         self._shut: tuple[float, ...] = (0.0, 0.0)  # how far each eye is closed (codec/eyelids.py)
         self._open = 1.0  # how open the mouth is, against the person's open mouth (codec/mouth_interior.py)
-        loops = face.meta["loops"]
-        #: the inner lips' outline, the mouth opening's: the model's picture inside it where the video is carried
-        self._opening = np.array(loops["inner_lip_upper"] + loops["inner_lip_lower"][::-1])
-        self._model: np.ndarray | None = None  # the model's last picture
         #: (frame, scene vertex positions, global motion) of the last frames drawn: where the picture
         #: layer's video frames were, to carry them (:meth:`carry`)
         self._drawn: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(maxlen=HELD)
@@ -195,8 +191,7 @@ class PictureView(FaceView):
             self._patch(0, self._scene.mouth_row, interior.drawn(opening))
         self._positions = positions
         self._drawn.append((self._seq, positions, still))
-        self._model = self._renderer.render(positions * self._scale, self._camera)[0]
-        return self._model
+        return self._renderer.render(positions * self._scale, self._camera)[0]
 
     def carry(self, video: np.ndarray, since: int) -> np.ndarray:
         """The picture layer's video frame ``video`` (any size), which shows frame ``since``, at this
@@ -207,7 +202,7 @@ class PictureView(FaceView):
         up. Drawn at the video's own size and then scaled up: the video has no finer detail to move."""
         import cv2
 
-        (pw, ph), (vw, vh), (w, h) = self._picture_size, video.shape[1::-1], self.size
+        (pw, ph), (vw, vh) = self._picture_size, video.shape[1::-1]
         _, now, now_motion = self._drawn[-1]
         # (a frame not drawn here, its parameters lost: the video as it is)
         _, then, then_motion = next((d for d in reversed(self._drawn) if d[0] == since), self._drawn[-1])
@@ -229,15 +224,8 @@ class PictureView(FaceView):
             self._carried_motion = motion
             carrier.set_background(video if np.array_equal(motion, _IDENTITY) else cv2.warpAffine(
                 video, motion, (vw, vh), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
-        carried = cv2.resize(carrier.render(now * scale, _picture_camera((vw, vh)))[0], self.size,
-                             interpolation=cv2.INTER_LINEAR)
-        if self._model is not None:  # the mouth's inside is the model's, which moves every frame: the
-            # video's, a few frames old and carried, reads as a mouth that hardly moves
-            outline = self._scene.pixels(now)[self._opening] * self._scale[:2]
-            inside = np.zeros((h, w), np.uint8)
-            cv2.fillPoly(inside, [np.round(outline * 16).astype(np.int32)], 1, cv2.LINE_8, 4)
-            cv2.copyTo(self._model, inside, carried)
-        return carried
+        carried = carrier.render(now * scale, _picture_camera((vw, vh)))[0]
+        return cv2.resize(carried, self.size, interpolation=cv2.INTER_LINEAR)
 
     @property
     def mouth_box(self) -> tuple[float, float, float, float]:

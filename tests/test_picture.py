@@ -412,20 +412,6 @@ def test_the_sender_measures_a_known_global_motion():
     np.testing.assert_allclose(measure.measure(big, landmarks * 2), got, atol=0.01)
 
 
-def test_a_carried_video_frame_shows_the_model_inside_the_opened_mouth():
-    face = a_face_with_a_picture((400, 320), scale=140.0)
-    view = PictureView(header(face), face, (400, 320))
-    first = view.model_picture(np.zeros(len(NAMES)), 0)
-    video = cv2.resize(255 - first, (200, 160), interpolation=cv2.INTER_AREA)  # unlike the model anywhere
-    opened = view.model_picture(np.array([20.0, 0, 0, 0, 0, 0, 0]), 1)  # the jaw drops 20 degrees
-    carried = view.carry(video, 0)
-    same = np.all(carried == opened, axis=2)
-    assert 50 < same.sum() < 0.05 * same.size  # the opening, and nothing else, is the model's
-    ys, xs = np.nonzero(same)
-    x0, y0, x1, y1 = view.mouth_box
-    assert x0 <= xs.min() and xs.max() <= x1 and y0 <= ys.min() and ys.max() <= y1
-
-
 def test_shoulders_that_move_on_a_plain_wall_are_not_a_moving_camera():
     """The bundled clip's case: a plain wall, and corners only on the speaker's shoulders (beside
     and below the face): they move with the person, so the camera stays still."""
