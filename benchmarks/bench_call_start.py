@@ -14,7 +14,6 @@ seconds of their first frame at that rate.
 
 import argparse
 import json
-import tempfile
 from math import ceil
 from pathlib import Path
 
@@ -22,7 +21,7 @@ import numpy as np
 
 import facedeform
 from facedeform.experiment.baselines import CODECS, encode_decode
-from facedeform.experiment.clips import prepare
+from facedeform.experiment.clips import crops
 
 CALL = 60.0  # seconds
 BASELINES = ("x264", "x265")
@@ -58,20 +57,18 @@ def main() -> None:
     args = p.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
-    with tempfile.TemporaryDirectory(prefix="fd-bench-") as work:
-        for path in args.clips:
-            clip = prepare(path, 256, Path(work))
-            face = facedeform.enroll(str(clip.path))
-            count = round(CALL * clip.fps)
-            frames = (clip.frames * ceil(count / len(clip.frames)))[:count]
-            row: dict = {"clip": clip.name, "face_bytes": len(face.data)}
-            for kbps in args.rates:
-                row[f"{kbps:g}k"] = {"in_stream": ours(frames, clip.fps, face, kbps, True),
-                                     "by_id": ours(frames, clip.fps, face, kbps, False)}
-            for codec in BASELINES:
-                row[codec] = theirs(frames, clip.fps, codec, Path(work))
-            rows.append(row)
-            print(json.dumps(row), flush=True)
+    for clip, work in crops(args.clips):
+        face = facedeform.enroll(str(clip.path))
+        count = round(CALL * clip.fps)
+        frames = (clip.frames * ceil(count / len(clip.frames)))[:count]
+        row: dict = {"clip": clip.name, "face_bytes": len(face.data)}
+        for kbps in args.rates:
+            row[f"{kbps:g}k"] = {"in_stream": ours(frames, clip.fps, face, kbps, True),
+                                 "by_id": ours(frames, clip.fps, face, kbps, False)}
+        for codec in BASELINES:
+            row[codec] = theirs(frames, clip.fps, codec, work)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
     (args.out / "call_start.json").write_text(json.dumps(rows, indent=1) + "\n")
     print("| clip | face KB | " + " | ".join(f"{r:g} kbit/s: first frame KB, s (face held: s); minute KB"
                                             for r in args.rates)

@@ -25,7 +25,6 @@ drawing's.
 
 import argparse
 import json
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +33,7 @@ import facedeform
 from facedeform.codec.deform import GLOBAL_PARAMS, POSE_PARAMS, Deformer, extended_params
 from facedeform.codec.motion_basis import MAX_COMPONENTS
 from facedeform.experiment import metrics
-from facedeform.experiment.clips import prepare, track
+from facedeform.experiment.clips import crops, track
 from facedeform.protocol.stream import frame_bytes
 from facedeform.receiver.face_view import PictureView
 from facedeform.sender.calibrate import lip_gap
@@ -117,14 +116,11 @@ def main() -> None:
         options.update(bitrate=1000 * args.bitrate, picture_layer=False)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
-    with tempfile.TemporaryDirectory(prefix="fd-bench-") as tmp:
-        work = Path(tmp)
-        for path in args.clips:
-            clip = prepare(path, 256, work)
-            half = len(clip.frames) / 2 / clip.fps
-            face = facedeform.enroll(str(clip.path), seconds=1.0, motion=args.motion, motion_seconds=half)
-            rows.append(row := run(clip, face, work, options))
-            print(json.dumps(row), flush=True)
+    for clip, work in crops(args.clips):
+        half = len(clip.frames) / 2 / clip.fps
+        face = facedeform.enroll(str(clip.path), seconds=1.0, motion=args.motion, motion_seconds=half)
+        rows.append(row := run(clip, face, work, options))
+        print(json.dumps(row), flush=True)
     (args.out / "expression.json").write_text(json.dumps(rows, indent=1) + "\n")
     print("| clip | " + " | ".join(t for t, _, _ in TABLE) + " |")
     print("|---" * (len(TABLE) + 1) + "|")

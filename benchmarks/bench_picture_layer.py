@@ -13,7 +13,6 @@ receiver's (decoding and drawing, the layer included), one thread each.
 
 import argparse
 import json
-import tempfile
 import time
 from pathlib import Path
 
@@ -21,7 +20,7 @@ import numpy as np
 
 import facedeform
 from facedeform.codec.motion_basis import MAX_COMPONENTS
-from facedeform.experiment.clips import prepare
+from facedeform.experiment.clips import crops
 from facedeform.experiment.metrics import psnr_rgb
 from facedeform.protocol.stream import frame_bytes
 from facedeform.sender.config import SendConfig
@@ -67,14 +66,12 @@ def main() -> None:
     args = p.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
-    with tempfile.TemporaryDirectory(prefix="fd-bench-") as work:
-        for path in args.clips:
-            clip = prepare(path, 256, Path(work))
-            half = len(clip.frames) / 2 / clip.fps
-            face = facedeform.enroll(str(clip.path), seconds=1.0, motion=MAX_COMPONENTS, motion_seconds=half)
-            for kbps in [None, *args.rates]:
-                rows.append(row := run(clip, face, kbps))
-                print(json.dumps(row), flush=True)
+    for clip, _ in crops(args.clips):
+        half = len(clip.frames) / 2 / clip.fps
+        face = facedeform.enroll(str(clip.path), seconds=1.0, motion=MAX_COMPONENTS, motion_seconds=half)
+        for kbps in [None, *args.rates]:
+            rows.append(row := run(clip, face, kbps))
+            print(json.dumps(row), flush=True)
     (args.out / "picture_layer.json").write_text(json.dumps(rows, indent=1) + "\n")
     print("| setting | kbit/s | largest 2 s window / rate | picture packets/s | PSNR dB (5th pct.) | sender fps "
           "| receiver fps |")

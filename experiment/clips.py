@@ -15,6 +15,8 @@ baselines, which take frames, start from the same pixels.
 """
 
 import json
+import tempfile
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from itertools import islice
 from pathlib import Path
@@ -89,6 +91,15 @@ def prepare(source: Path, size: int, out_dir: Path, seconds: float | None = None
                                 "box": {"x": x, "y": y, "side": side}}) + "\n")
     return load(name, path, video.fps)
 
+
+
+def crops(sources: Iterable[Path], size: int = 256) -> Iterator[tuple[Clip, Path]]:
+    """(each of ``sources`` as :func:`prepare` crops it at ``size``, the folder it is in): a temporary
+    folder, removed when the iteration ends, which the caller may write in too (the benchmarks)."""
+    with tempfile.TemporaryDirectory(prefix="fd-bench-") as tmp:
+        work = Path(tmp)
+        for source in sources:
+            yield prepare(Path(source), size, work), work
 
 def load(name: str, path: Path, fps: float) -> Clip:
     """A prepared crop read back (what a worker process does instead of receiving the frames)."""
