@@ -65,9 +65,9 @@ def main() -> None:
     for path in args.dumps:
         dump = read_dump(path)
         layouts[dump[0]][path.name.split(".")[0]] = dump
-    table = []
+    table, bases = [], {}
     for names, by_clip in layouts.items():
-        basis = learnt(list(by_clip.values()))
+        bases[names] = basis = learnt(list(by_clip.values()))
         translation = () if "tx" in names else POSE_PARAMS[3:]
         extras = dict.fromkeys(((), translation, translation + GLOBAL_PARAMS))  # full has the translation already
         table += [widened(names, basis, extra) for extra in extras]
@@ -83,9 +83,9 @@ def main() -> None:
         rows = []
         for clip, (_, fps, params, found) in by_clip.items():
             first = [x for x, seen in zip(params[:first_second(fps)], found) if seen]
-            bases = (None, sample_basis(names, first), learnt([d for c, d in by_clip.items() if c != clip]),
-                     learnt(list(by_clip.values())))
-            rows.append([bits(by_clip[clip], b) for b in bases])
+            ways = (None, sample_basis(names, first), learnt([d for c, d in by_clip.items() if c != clip]),
+                    bases[names])
+            rows.append([bits(by_clip[clip], b) for b in ways])
             print(f"| {clip} | " + " | ".join(f"{v:.1f}" for v in rows[-1]) + " |")
         print("| mean | " + " | ".join(f"{v:.1f}" for v in np.mean(rows, axis=0)) + " |")
 

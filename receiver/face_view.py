@@ -219,7 +219,7 @@ class PictureView(FaceView):
             else:
                 carrier.retexture(uv, video)
             self._carrier, self._carried, self._carried_motion = carrier, (video, since), None
-        motion = _between(then_motion, now_motion, np.diag(scale[:2]))
+        motion = _between(then_motion, now_motion, (vw / pw, vh / ph))
         if self._carried_motion is None or not np.array_equal(motion, self._carried_motion):
             self._carried_motion = motion
             carrier.set_background(video if np.array_equal(motion, _IDENTITY) else cv2.warpAffine(
@@ -276,20 +276,20 @@ class PictureView(FaceView):
 _IDENTITY = np.eye(2, 3)
 
 
-def _between(then: np.ndarray | None, now: np.ndarray | None, scale: np.ndarray) -> np.ndarray:
+def _between(then: np.ndarray | None, now: np.ndarray | None, zoom: tuple[float, float]) -> np.ndarray:
     """(2, 3) pixel map from a frame whose global motion was ``then`` to one whose is ``now`` (each a
-    (2, 3) map from the reference picture, None: none), in pixels ``scale`` (2, 2) times the picture's."""
+    (2, 3) map from the reference picture, None: none), in pixels ``zoom`` (x, y) times the picture's."""
     if (then is None and now is None) or (then is not None and now is not None and np.array_equal(then, now)):
         return _IDENTITY
+
     def square(m: np.ndarray | None) -> np.ndarray:
         full = np.eye(3)
         if m is not None:
             full[:2] = m
-        full[:2, :2] = scale @ full[:2, :2] @ np.linalg.inv(scale)
-        full[:2, 2] = scale @ full[:2, 2]
         return full
 
-    return (square(now) @ np.linalg.inv(square(then)))[:2]
+    scale = np.diag([*zoom, 1.0])
+    return (scale @ square(now) @ np.linalg.inv(square(then)) @ np.linalg.inv(scale))[:2]
 
 
 def _picture_camera(size: tuple[int, int]) -> Camera:
