@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from facedeform.codec.deform import PAPER_PARAMS, Deformer, extended_params
-from facedeform.codec.face_model import load_base_face
+from facedeform.codec.model.deform import PAPER_PARAMS, Deformer, extended_params
+from facedeform.codec.model.face_model import load_base_face
 from facedeform.protocol.framing import DELTA, KEY, body_bits, kind_of
 from facedeform.protocol.quantise import QUALITIES
 from facedeform.protocol.stream import VERSION, Frame, PacketEncoder, StreamDecoder, frame_bytes

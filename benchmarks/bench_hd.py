@@ -35,10 +35,10 @@ LOOPS = 20  # passes of FFmpeg over the clip
 SIZES = {256: (320, 256), 512: (640, 512), 720: (1280, 720), 1080: (1920, 1080)}
 STAGES = {  # what each stage's time is spent in: (module, class, method)
     "decode": ("facedeform.protocol.decoder", "ByteStreamDecoder", "feed"),
-    "deform": ("facedeform.codec.deform", "Deformer", "deform_extended"),
-    "scene mesh": ("facedeform.codec.picture", "SceneMesh", "positions"),
+    "deform": ("facedeform.codec.model.deform", "Deformer", "deform_extended"),
+    "scene mesh": ("facedeform.codec.render.picture", "SceneMesh", "positions"),
     "background warp": ("facedeform.receiver.face_view", "PictureView", "_move_background"),
-    "rasterise": ("facedeform.codec.render", "Renderer", "render"),
+    "rasterise": ("facedeform.codec.render.render", "Renderer", "render"),
 }
 
 

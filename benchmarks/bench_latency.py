@@ -84,7 +84,7 @@ def receive(times_path: str, warm: bool) -> None:
     """The receiver process: prints the port it listens on, then renders the call as fd-recv does;
     ``warm``: first draws a face once, loading the renderer's compiled kernels before the call
     (which fd-recv does once the header arrives)."""
-    from facedeform.codec.face_model import load_base_face
+    from facedeform.codec.model.face_model import load_base_face
     from facedeform.protocol.stream import Header, steps_for
     from facedeform.receiver.face_view import open_view
     from facedeform.receiver.session import ReceiveSession

@@ -21,10 +21,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from facedeform.codec.deform import GLOBAL_PARAMS
-from facedeform.codec.face_file import Face
-from facedeform.codec.face_model import ReferencePicture
-from facedeform.codec.picture import Placement
+from facedeform.codec.face_file.format import Face
+from facedeform.codec.model.deform import GLOBAL_PARAMS
+from facedeform.codec.model.face_model import ReferencePicture
+from facedeform.codec.render.picture import Placement
 from facedeform.protocol.stream import Header, steps_for
 from facedeform.receiver.face_view import PictureView
 

@@ -12,7 +12,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from facedeform.codec.face_model import load_base_face
+from facedeform.codec.model.face_model import load_base_face
 from facedeform.protocol.stream import Frame, StreamDecoder
 from facedeform.receiver.face_view import FaceView
 from facedeform.receiver.output import open_writer

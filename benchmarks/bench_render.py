@@ -20,10 +20,10 @@ import time
 import numba
 import numpy as np
 
-from facedeform.codec.camera import Camera
-from facedeform.codec.deform import Deformer
-from facedeform.codec.face_model import load_base_face
-from facedeform.codec.render import Renderer
+from facedeform.codec.model.deform import Deformer
+from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.render.camera import Camera
+from facedeform.codec.render.render import Renderer
 from facedeform.receiver.face_view import FIELD_OF_VIEW, FRAMING
 
 FRAMES = 100
@@ -31,9 +31,9 @@ FIRST_CALL = """
 import time
 start = time.perf_counter()
 import numpy as np
-from facedeform.codec.camera import Camera
-from facedeform.codec.face_model import load_base_face
-from facedeform.codec.render import Renderer
+from facedeform.codec.render.camera import Camera
+from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.render.render import Renderer
 face = load_base_face()
 Renderer(face.faces, size=(512, 512), mouth_faces=face.mouth_faces, eye_faces=face.eye_faces).render(
     face.vertices, Camera.perspective(20.0, eye=(0, 0, 4.4), target=(0, 0, 0)))

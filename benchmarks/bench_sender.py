@@ -30,8 +30,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from facedeform.codec.deform import Deformer
-from facedeform.codec.face_model import load_base_face
+from facedeform.codec.model.deform import Deformer
+from facedeform.codec.model.face_model import load_base_face
 from facedeform.protocol.quantise import DEAD_ZONE, DEFAULT_QUALITY, QUALITIES
 from facedeform.protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, quality_for_bitrate
 from facedeform.sender.analysis import LAYOUTS, FaceAnalyser, Smoothing

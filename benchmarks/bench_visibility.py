@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facedeform.codec.face_model import load_base_face
+from facedeform.codec.model.face_model import load_base_face
 from facedeform.experiment.metrics import psnr, ssim
 from facedeform.protocol.stream import PacketEncoder, frame_bytes
 from facedeform.receiver.face_view import BACKGROUND, FaceView

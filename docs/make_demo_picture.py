@@ -15,10 +15,10 @@ import cv2
 import numpy as np
 
 import facedeform
-from facedeform.codec.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer
-from facedeform.codec.face_file import Face
-from facedeform.codec.face_model import load_base_face
-from facedeform.codec.picture import SceneMesh, frame_placement
+from facedeform.codec.face_file.format import Face
+from facedeform.codec.model.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer
+from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.render.picture import SceneMesh, frame_placement
 from facedeform.protocol.stream import Frame, Header, StreamDecoder, steps_for
 from facedeform.receiver.face_view import open_view
 from facedeform.receiver.output import VideoFileWriter

@@ -1,7 +1,7 @@
 """Draw docs/presets_rendered.png (the paper's Figs. 6-9, shaded) and docs/expressions.png.
 
 The presets are drawn by the paper's rule (top row) and, for comparison, by the
-project's refined rule (bottom row, codec/regions.py); the expressions by the
+project's refined rule (bottom row, codec/model/regions.py); the expressions by the
 refined rule, as fd-animate draws them. Rendered with codec.render.Renderer
 through the receiver's perspective camera (receiver/face_view.py framing); run
 from anywhere:
@@ -15,10 +15,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from facedeform.codec.deform import PRESETS, Deformer
-from facedeform.codec.expressions import expression_params
-from facedeform.codec.face_model import load_base_face
-from facedeform.codec.render import Renderer
+from facedeform.codec.model.deform import PRESETS, Deformer
+from facedeform.codec.model.expressions import expression_params
+from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.render.render import Renderer
 from facedeform.receiver.face_view import portrait_camera
 
 OUT = Path(__file__).resolve().parent

@@ -14,10 +14,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from facedeform.codec.deform import PRESETS, Deformer
-from facedeform.codec.face_model import load_base_face
-from facedeform.codec.folds import Facing
-from facedeform.codec.regions import FEATURE_NAMES
+from facedeform.codec.model.deform import PRESETS, Deformer
+from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.model.folds import Facing
+from facedeform.codec.model.regions import FEATURE_NAMES
 
 OUT = Path(__file__).resolve().parent
 WHITE, BLACK, GREY = (255, 255, 255), (0, 0, 0), (150, 150, 150)

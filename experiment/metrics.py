@@ -20,10 +20,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from facedeform.codec.face_model import load_base_face
+from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.model.head_pose import image_to_face_axes
 from facedeform.sender.calibrate import eye_opening, inter_ocular, lip_gap
 from facedeform.sender.fidelity import MOUTH_JAW_LANDMARKS
-from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
+from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose
 
 #: Lip landmarks of the tracker (outer and inner contours).
 MOUTH = (0, 13, 14, 17, 37, 39, 40, 61, 78, 80, 81, 82, 84, 87, 88, 91, 95, 146, 178, 181, 185, 191,

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facedeform.codec.motion_basis import MAX_COMPONENTS
+from facedeform.codec.model.motion_basis import MAX_COMPONENTS
 from facedeform.common.errors import FdError
 from facedeform.experiment import metrics
 from facedeform.experiment.baselines import CODECS, encode_decode

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facedeform.codec.face_file import Face
+from facedeform.codec.face_file.format import Face
 from facedeform.common.limits import MAX_SIDE
 
 __all__ = ["Face", "decode", "encode", "enroll"]

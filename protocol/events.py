@@ -29,7 +29,7 @@ class Model:
 
 @dataclass(frozen=True)
 class Picture:
-    """The picture layer's payload for frame ``seq`` (its own format: codec/frame_video.py)."""
+    """The picture layer's payload for frame ``seq`` (its own format: codec/render/frame_video.py)."""
 
     seq: int
     data: bytes

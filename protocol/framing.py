@@ -17,7 +17,7 @@ A code never starts with :data:`SYNC`, which is all a decoder needs to tell a
 delta from the rest; a decoder reads a delta only where the packet before it
 ended. A datagram holds one packet's bytes exactly as on a byte stream.
 
-The picture layer's packets (a payload of codec/frame_video.py, in pieces) are framed
+The picture layer's packets (a payload of codec/render/frame_video.py, in pieces) are framed
 like model chunks::
 
     0xFD | type byte | length varint | frame varint | total varint | offset varint | piece | check

@@ -27,7 +27,7 @@ MAX_MODEL = 16 << 20  # bytes of pre-shared face model carried in-band
 MAX_KEY_INTERVAL = 255
 MAX_DIVISOR = 16
 MAX_STEP = 1e6  # a quantiser step: any index times any step stays finite (|index| < 2**34)
-#: Deformation rules a sender may assume (codec/deform.py), one byte on the wire: the index here.
+#: Deformation rules a sender may assume (codec/model/deform.py), one byte on the wire: the index here.
 RULES = ("refined", "paper")
 _FLAG_F3_WITH_JAW, _FLAG_STATIC, _FLAG_BASIS = 1, 2, 4
 #: The steps are the quality level's (protocol.quantise.steps_for) and are not written: 8 bytes a

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facedeform.codec.regions import DEFAULT_RULE, RULES
+from facedeform.codec.model.regions import DEFAULT_RULE, RULES
 from facedeform.common.cli import ArgumentParser, check_output, fitted, number, parse_size, run_main
 
 MAX_SECONDS = 3600  # an hour of animation: a longer script is a mistake, not a wish
@@ -59,7 +59,7 @@ def main(argv=None) -> int:
 
 def read_script(path: str) -> tuple[np.ndarray, np.ndarray]:
     """(k,) increasing key times and (k, len(EXTENDED_PARAMS)) parameters of a script file."""
-    from facedeform.codec.expressions import au_params, expression_params
+    from facedeform.codec.model.expressions import au_params, expression_params
     from facedeform.common.errors import InputError
 
     try:
@@ -96,8 +96,8 @@ def read_script(path: str) -> tuple[np.ndarray, np.ndarray]:
 
 def _line_params(words: list[str], where: str) -> np.ndarray:
     """Sum of 'name [intensity]' pairs of one text key; a name AU<n> is Action Unit n."""
-    from facedeform.codec.deform import EXTENDED_PARAMS
-    from facedeform.codec.expressions import au_params, expression_params
+    from facedeform.codec.model.deform import EXTENDED_PARAMS
+    from facedeform.codec.model.expressions import au_params, expression_params
     from facedeform.common.errors import InputError
 
     if not words:
@@ -131,9 +131,9 @@ def interpolate(times: np.ndarray, keys: np.ndarray, t: float) -> np.ndarray:
 
 
 def _run(args) -> int:
-    from facedeform.codec.deform import Deformer
-    from facedeform.codec.face_model import load_base_face
-    from facedeform.codec.render import WARMING_UP, warm_up
+    from facedeform.codec.model.deform import Deformer
+    from facedeform.codec.model.face_model import load_base_face
+    from facedeform.codec.render.render import WARMING_UP, warm_up
     from facedeform.common.errors import InputError
     from facedeform.common.progress import slow_step
     from facedeform.receiver.face_view import face_renderer, portrait_camera

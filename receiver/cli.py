@@ -79,7 +79,7 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    from facedeform.codec.face_file import Face
+    from facedeform.codec.face_file.format import Face
     from facedeform.common.errors import InputError
     from facedeform.common.keys import read_key
     from facedeform.common.progress import progress_for
@@ -104,7 +104,7 @@ def _run(args) -> int:
         sinks = [open_writer(args.output, fps, size, sys.stdout.buffer)] if args.output else []
         return sinks + ([_Shown(viewer)] if viewer else [])
 
-    from facedeform.codec.render import WARMING_UP, warm_up
+    from facedeform.codec.render.render import WARMING_UP, warm_up
     from facedeform.common.progress import slow_step
 
     # before the stream: a call's first frame waits only for the call, and the first run after an

@@ -2,21 +2,21 @@
 
 Three looks: "shaded", the paper's Phong-shaded face; "face", the person's
 textured face alone (FaceView); "picture", the person's whole reference
-picture warped by the moving face (PictureView, codec/picture.py).
+picture warped by the moving face (PictureView, codec/render/picture.py).
 """
 
 from collections import deque
 
 import numpy as np
 
-from facedeform.codec.camera import Camera
-from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, Deformer
-from facedeform.codec.eyelids import Eyelids
-from facedeform.codec.face_model import BaseFace, mouth_vertices
-from facedeform.codec.frame_video import HELD, VideoLayer
-from facedeform.codec.mouth_interior import LOWER_LIP, UPPER_LIP
-from facedeform.codec.picture import SceneMesh, face_texture, frame_placement, global_matrix
-from facedeform.codec.render import UNLIT, Renderer
+from facedeform.codec.model.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, Deformer
+from facedeform.codec.model.face_model import BaseFace, mouth_vertices
+from facedeform.codec.render.camera import Camera
+from facedeform.codec.render.eyelids import Eyelids
+from facedeform.codec.render.frame_video import HELD, VideoLayer
+from facedeform.codec.render.mouth_interior import LOWER_LIP, UPPER_LIP
+from facedeform.codec.render.picture import SceneMesh, face_texture, frame_placement, global_matrix
+from facedeform.codec.render.render import UNLIT, Renderer
 from facedeform.common.errors import BitstreamError, InputError
 from facedeform.common.stages import View
 from facedeform.protocol.stream import Header
@@ -121,11 +121,11 @@ _GLOBAL = [EXTENDED_PARAMS.index(n) for n in GLOBAL_PARAMS]
 
 class PictureView(FaceView):
     """The whole picture: the reference picture, warped by the face deformed with the expression
-    and placed by the head pose relative to the reference (codec/picture.py), at ``size`` (the
+    and placed by the head pose relative to the reference (codec/render/picture.py), at ``size`` (the
     picture and its projection scaled to it), the picture moved by the frame's global motion (the
     camera's). Unlit: the picture's own light.
 
-    The picture layer (:attr:`layer`, codec/frame_video.py) draws the real frame as a small video
+    The picture layer (:attr:`layer`, codec/render/frame_video.py) draws the real frame as a small video
     where the sender found it nearer the frame than this picture (a turned head's far side, a
     shirt, the background a camera uncovers); the sender runs this same view and layer on what it
     sends (sender/picture_layer.py), so both ends draw the same pixels.
@@ -155,8 +155,8 @@ class PictureView(FaceView):
         self._lips = mouth_vertices(face)
         self._positions: np.ndarray | None = None  # the scene's vertices in the last picture drawn
         self._lids = Eyelids(face, self._scene.rest_pixels, self._picture_size)
-        self._shut: tuple[float, ...] = (0.0, 0.0)  # how far each eye is closed (codec/eyelids.py)
-        self._open = 1.0  # how open the mouth is, against the person's open mouth (codec/mouth_interior.py)
+        self._shut: tuple[float, ...] = (0.0, 0.0)  # how far each eye is closed (codec/render/eyelids.py)
+        self._open = 1.0  # how open the mouth is, against the person's open mouth (codec/render/mouth_interior.py)
         #: (frame, scene vertex positions, global motion) of the last frames drawn: where the picture
         #: layer's video frames were, to carry them (:meth:`carry`)
         self._drawn: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(maxlen=HELD)

@@ -9,8 +9,8 @@ from fractions import Fraction
 
 import numpy as np
 
-from facedeform.codec.face_file import decode_face
-from facedeform.codec.face_model import BaseFace, load_base_face
+from facedeform.codec.face_file.format import decode_face
+from facedeform.codec.model.face_model import BaseFace, load_base_face
 from facedeform.common.cli import fitted
 from facedeform.common.errors import BitstreamError, InputError
 from facedeform.common.npz import NpzAppender

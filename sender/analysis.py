@@ -6,7 +6,7 @@ as it goes in. Smoothing (One Euro) is applied either to the pose-free
 landmarks before the fit or to the parameters after it (``Smoothing.stage``).
 With a face model that has a reference picture, the head pose is measured
 against that picture instead of the rest frame, translation and scale included
-(codec/picture.py), whatever the layout, and the whole frame's motion against
+(codec/render/picture.py), whatever the layout, and the whole frame's motion against
 it comes last (GLOBAL_PARAMS, sender/motion_global.py).
 """
 
@@ -15,19 +15,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facedeform.codec.deform import GLOBAL_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
-from facedeform.codec.face_model import BaseFace
-from facedeform.codec.mouth import MOUTH_PARAMS
-from facedeform.codec.picture import VIEW_DISTANCE, Placement, head_pivot, relative_pose
-from facedeform.codec.regions import DEFAULT_RULE
-from facedeform.codec.upper_face import LID_PARAMS, UPPER_PARAMS
+from facedeform.codec.model.deform import GLOBAL_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
+from facedeform.codec.model.face_model import BaseFace
+from facedeform.codec.model.head_pose import head_pivot, image_to_face_axes
+from facedeform.codec.model.mouth import MOUTH_PARAMS
+from facedeform.codec.model.regions import DEFAULT_RULE
+from facedeform.codec.model.upper_face import LID_PARAMS, UPPER_PARAMS
+from facedeform.codec.render.picture import VIEW_DISTANCE, Placement, relative_pose
 from facedeform.common.errors import InputError, NoFaceError
 from facedeform.common.stages import Tracker
 from facedeform.protocol.quantise import VECTOR_STEP, steps_for
 from facedeform.sender.calibrate import RestFace, choose_rest, fapu_ratios
 from facedeform.sender.fit import ModelFit
 from facedeform.sender.motion_global import GlobalMotion
-from facedeform.sender.pose import STABLE_LANDMARKS, Pose, fit_pose, image_to_face_axes
+from facedeform.sender.pose import STABLE_LANDMARKS, Pose, fit_pose
 from facedeform.sender.smoothing import OneEuroFilter
 
 #: Per frame without a face, the parameters keep this fraction of their value: the face relaxes to rest.
@@ -110,7 +111,7 @@ class FaceAnalyser:
     """Runs a tracker and the model fit over frames; yields one :class:`FrameAnalysis` per frame.
 
     layout: "paper" (the paper's 13 and head rotation), "full" (plus brows, lids, cheeks and head
-    translation), "mouth" (the paper's 13, the richer mouth and jaw of codec/mouth.py, the lids,
+    translation), "mouth" (the paper's 13, the richer mouth and jaw of codec/model/mouth.py, the lids,
     head rotation), "personal" (the paper's 13 when the face's own motion basis refines them, the
     basis, the lids, head rotation) or "auto" (``resolve_layout``); the lids of "mouth" and
     "personal" take what the rest leaves over at them (``ModelFit.lids``); calibration_frames: how

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facedeform.codec.eyelids import CORNERS, LIDS
-from facedeform.codec.face_model import BaseFace
-from facedeform.codec.mouth_interior import LOWER_LIP, UPPER_LIP
+from facedeform.codec.model.face_model import BaseFace
+from facedeform.codec.render.eyelids import CORNERS, LIDS
+from facedeform.codec.render.mouth_interior import LOWER_LIP, UPPER_LIP
 from facedeform.common.errors import InputError
 
 MOUTH_CORNERS = (61, 291)

@@ -4,7 +4,7 @@ import argparse
 import json
 import sys
 
-from facedeform.codec.regions import RULES
+from facedeform.codec.model.regions import RULES
 from facedeform.common.cli import ArgumentParser, check_output, number, run_main
 from facedeform.protocol.quantise import DEFAULT_QUALITY
 from facedeform.protocol.secure import TAG_BITS
@@ -141,7 +141,7 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    from facedeform.codec.face_file import Face
+    from facedeform.codec.face_file.format import Face
     from facedeform.common.keys import read_key
     from facedeform.common.progress import progress_for
     from facedeform.sender.session import SendSession
@@ -164,7 +164,7 @@ def _run(args) -> int:
                         basis=not args.no_basis, divisor=args.send_every,
                         datagrams=args.output.startswith("udp://"), redundancy=args.redundancy, rule=args.rule)
     if face is not None and config.bitrate is not None and config.picture_layer:
-        from facedeform.codec.render import WARMING_UP, warm_up
+        from facedeform.codec.render.render import WARMING_UP, warm_up
         from facedeform.common.progress import slow_step
 
         with slow_step("fd-send", WARMING_UP, args.quiet or args.json):  # the picture layer draws what is sent

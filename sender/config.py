@@ -8,7 +8,7 @@ whether it came from the command line or from code.
 
 from dataclasses import dataclass, fields
 
-from facedeform.codec.regions import DEFAULT_RULE, check_rule
+from facedeform.codec.model.regions import DEFAULT_RULE, check_rule
 from facedeform.common.cli import describe_range, in_range
 from facedeform.common.errors import InputError
 from facedeform.protocol.encoder import COPIES, MAX_DEAD_ZONE

@@ -4,7 +4,7 @@
 import argparse
 import sys
 
-from facedeform.codec.motion_basis import MAX_COMPONENTS
+from facedeform.codec.model.motion_basis import MAX_COMPONENTS
 from facedeform.common.cli import ArgumentParser, check_output, number, run_main
 from facedeform.sender.enrolment import MOTION_PATTERNS, TEXTURE_SIDES, TEXTURE_SIZE
 from facedeform.sender.motion import FRAMES_PER_PATTERN
@@ -99,7 +99,7 @@ def _run(args) -> int:
 def _picture_note(picture) -> str:
     if picture is None:
         return ", no reference picture"
-    from facedeform.codec.face_file import encode_picture
+    from facedeform.codec.face_file.format import encode_picture
 
     height, width = picture.image.shape[:2]
     mouth = "no open mouth" if picture.mouth is None else \

@@ -3,7 +3,7 @@
 The mesh is the person's own landmarks in a neutral frame with the head pose
 removed; the whole neutral frame is kept as the reference picture, with where
 the face sits in it, and their widest open mouth beside it: the receiver then
-draws the whole picture, warped by the moving face (codec/picture.py). When the
+draws the whole picture, warped by the moving face (codec/render/picture.py). When the
 clip shows them talking, the model also carries their own motion basis
 (sender/motion.py) and how far the hair and shoulders around the face follow
 the head (sender/motion_global.RingWeights).
@@ -20,14 +20,15 @@ from itertools import islice
 import cv2
 import numpy as np
 
-from facedeform.codec.face_file import Face, decode_face, personal_face
-from facedeform.codec.face_model import BaseFace, ReferencePicture, load_base_face, mouth_vertices, normalise
-from facedeform.codec.motion_basis import MAX_COMPONENTS, OVER
+from facedeform.codec.face_file.format import Face, decode_face, personal_face
+from facedeform.codec.model.face_model import BaseFace, ReferencePicture, load_base_face, mouth_vertices, normalise
+from facedeform.codec.model.head_pose import image_to_face_axes
+from facedeform.codec.model.motion_basis import MAX_COMPONENTS, OVER
 from facedeform.common.errors import InputError, NoFaceError
 from facedeform.sender.calibrate import lip_gap
 from facedeform.sender.motion import learn_motion, residuals
 from facedeform.sender.motion_global import RingWeights
-from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
+from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose
 from facedeform.sender.sources import open_source
 from facedeform.sender.texture import texture_from_frame
 
@@ -66,7 +67,7 @@ def enroll_face(video, frame: int | None = None, seconds: float = 2.0, motion: i
     frame: the neutral frame's index (None: of the first ``seconds`` after the face appears, the
     one with the mouth most closed and the head nearest frontal); motion: most patterns in the
     motion basis (0: none), learned from the first ``motion_seconds`` over ``motion_over``
-    ("rest" or "paper", codec/motion_basis.py); picture: keep the reference picture (else only a
+    ("rest" or "paper", codec/model/motion_basis.py); picture: keep the reference picture (else only a
     texture of ``texture_size`` texels a side); on_frame(done, total): progress of the motion pass.
     Caller mistakes are ValueError; a clip that cannot be read or shows no face, FdError.
     """

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facedeform.codec.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer, extended_params
+from facedeform.codec.model.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer, extended_params
 from facedeform.sender.calibrate import inter_ocular
 
 _OUTER_LIPS = (61, 146, 91, 181, 84, 17, 314, 405, 321, 375,

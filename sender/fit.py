@@ -7,9 +7,9 @@ points. The model is linear where it can be:
 - the jaw rotation R(theta) = I + sin(theta) K + (1 - cos(theta)) K^2 (Rodrigues),
   so every lower-face vertex is c0 + sin(theta) c1 + (1 - cos(theta)) c2 + B v,
   with v the 12 sent vector components and c1, c2, B fixed by the region map;
-- the upper face (brows, lids, cheeks) and the richer mouth (codec/mouth.py)
+- the upper face (brows, lids, cheeks) and the richer mouth (codec/model/mouth.py)
   are fixed linear bases; the mouth's is fitted jointly with the paper's vectors;
-- a person's own motion basis (codec/motion_basis.py) was learned from what the
+- a person's own motion basis (codec/model/motion_basis.py) was learned from what the
   paper's fit leaves over, or from the whole motion, so it is fitted the same
   way: to the residual of the paper's fit, or of the rest face (paper parameters 0).
 
@@ -20,10 +20,10 @@ trigonometric polynomial whose coefficients are two dot products per frame.
 
 import numpy as np
 
-from facedeform.codec.deform import EXTENDED_PARAMS, FREE, JAW_FOLLOWING, PAPER_PARAMS, Deformer, extended_params
-from facedeform.codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
-from facedeform.codec.regions import FEATURE_NAMES
-from facedeform.codec.upper_face import UPPER_PARAMS
+from facedeform.codec.model.deform import EXTENDED_PARAMS, FREE, JAW_FOLLOWING, PAPER_PARAMS, Deformer, extended_params
+from facedeform.codec.model.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
+from facedeform.codec.model.regions import FEATURE_NAMES
+from facedeform.codec.model.upper_face import UPPER_PARAMS
 
 THETA_RANGE = (-15.0, 45.0)  # degrees: a little closing past rest, a wide yawn
 #: Ridge weight, relative to each unknown's own normal-equation diagonal: keeps poorly

@@ -4,7 +4,7 @@ The clip is analysed exactly as fd-send will analyse a call with this face
 model (same tracker, rest face, paper fit) but unsmoothed, so the residuals are
 the motion and not the filter's lag. The whole face's displacement from the
 rest face, or what the paper's 13 parameters leave over of it, becomes the
-basis (codec/motion_basis.py).
+basis (codec/model/motion_basis.py).
 
 Whole face, because a basis over part of the mesh moves that part past the
 still vertices around it: the dev clips' nose bottom rises with the upper lip,
@@ -21,9 +21,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from facedeform.codec.deform import Deformer
-from facedeform.codec.face_model import BaseFace
-from facedeform.codec.motion_basis import MotionBasis, learn_basis
+from facedeform.codec.model.deform import Deformer
+from facedeform.codec.model.face_model import BaseFace
+from facedeform.codec.model.motion_basis import MotionBasis, learn_basis
 from facedeform.sender.analysis import FaceAnalyser, Smoothing
 
 #: Frames with a face needed per pattern. Held out on the dev clips (a basis learned from each

@@ -17,9 +17,10 @@ rings.
 import cv2
 import numpy as np
 
-from facedeform.codec.face_model import BaseFace, ReferencePicture
-from facedeform.codec.picture import Placement, SceneMesh, global_motion
-from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose, image_to_face_axes
+from facedeform.codec.model.face_model import BaseFace, ReferencePicture
+from facedeform.codec.model.head_pose import image_to_face_axes
+from facedeform.codec.render.picture import Placement, SceneMesh, global_motion
+from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose
 
 #: The face's landmark hull grown by this factor about its centre, and everything below the chin
 #: (neck, shoulders, body, across the whole picture), is left out where the points start and where they
@@ -128,7 +129,7 @@ class GlobalMotion:
 
 
 #: How much head motion (squared face heights, summed over frames) a ring vertex needs before its
-#: own measured weight counts as much as the default fall-off (codec/picture.RINGS): about 100 frames
+#: own measured weight counts as much as the default fall-off (codec/render/picture.RINGS): about 100 frames
 #: of a 0.04 face-height move. On the dev clips' 256x256 crops (mean PSNR, docs/picture.md): 0.05,
 #: 0.15 and 0.3 within 0.02 dB of each other, 0.15 with the best 5th percentile.
 WEIGHT_PRIOR = 0.15
@@ -137,7 +138,7 @@ SPREAD = 3
 
 
 class RingWeights:
-    """How far each ring vertex of the face's scene mesh (codec/picture.SceneMesh) follows the head,
+    """How far each ring vertex of the face's scene mesh (codec/render/picture.SceneMesh) follows the head,
     measured frame by frame (:meth:`add`, so one pass over the enrolment clip serves this and the
     motion basis) and read by :meth:`weights`: for each vertex the least-squares factor between
     where the picture's content at the vertex went (Lucas-Kanade flow from the picture, checked

@@ -1,5 +1,5 @@
 """The picture layer at the sender: the real frame as a small AV1 video beside the model's picture,
-under the rate the parameters leave (codec/frame_video.py).
+under the rate the parameters leave (codec/render/frame_video.py).
 
 The sender runs the receiver's own view (receiver.face_view.PictureView) on the parameters the
 receiver will decode (``protocol.encoder.PacketEncoder.reconstruction``) and the receiver's own
@@ -15,8 +15,8 @@ from math import ceil
 import cv2
 import numpy as np
 
-from facedeform.codec.face_model import BaseFace
-from facedeform.codec.frame_video import VideoEncoder, VideoLayer, blocks_in, choose_blocks, video_size
+from facedeform.codec.model.face_model import BaseFace
+from facedeform.codec.render.frame_video import VideoEncoder, VideoLayer, blocks_in, choose_blocks, video_size
 from facedeform.protocol.stream import Header, PacketEncoder, stream_size
 from facedeform.sender.config import PARAMETER_FLOOR, parameter_rate
 

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facedeform.codec.deform import rotation_vector
-from facedeform.codec.picture import Placement
+from facedeform.codec.model.head_pose import rotation_vector
+from facedeform.codec.render.picture import Placement
 
 #: Landmarks that barely move with expression: forehead, nose bridge and tip, eye
 #: corners, temples and upper cheekbones. Jaw-line, lip and lid landmarks stay out.
@@ -38,15 +38,10 @@ class Pose:
         return rotation_vector(self.rotation.T)
 
     def placement(self, factor: float = 1.0) -> Placement:
-        """The inverse map, base face to the frame's face axes (codec/picture.py's picture axes), in a
+        """The inverse map, base face to the frame's face axes (codec/render/picture.py's picture axes), in a
         frame ``factor`` times as large."""
         scale = factor / self.scale
         return Placement(scale, self.rotation.T, -scale * self.rotation.T @ self.translation)
-
-
-def image_to_face_axes(landmarks: np.ndarray) -> np.ndarray:
-    """(n, 3) tracker landmarks (x right, y down, z away from the camera) -> x right, y up, z toward the camera."""
-    return np.asarray(landmarks, dtype=np.float64) * np.array([1.0, -1.0, -1.0])
 
 
 def fit_pose(observed: np.ndarray, reference: np.ndarray, weights: np.ndarray | None = None) -> Pose:

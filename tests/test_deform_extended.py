@@ -10,12 +10,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
-from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, PAPER_PARAMS, Deformer
-from facedeform.codec.face_model import load_base_face
-from facedeform.codec.motion_basis import BASIS_PARAMS
-from facedeform.codec.mouth import MOUTH_PARAMS
-from facedeform.codec.regions import project_weights
-from facedeform.codec.upper_face import UPPER_PARAMS, gaze_direction
+from facedeform.codec.model.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, PAPER_PARAMS, Deformer
+from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.model.motion_basis import BASIS_PARAMS
+from facedeform.codec.model.mouth import MOUTH_PARAMS
+from facedeform.codec.model.regions import project_weights
+from facedeform.codec.model.upper_face import UPPER_PARAMS, gaze_direction
 
 FACE = load_base_face()
 DEF = Deformer(FACE)
@@ -177,10 +177,10 @@ def test_bad_params_raise(bad):
         DEF.deform_extended(bad)
 
 
-# The richer mouth and jaw (codec/mouth.py)
+# The richer mouth and jaw (codec/model/mouth.py)
 
 def test_mouth_points_move_by_their_vectors_and_paper_points_stay():
-    from facedeform.codec.mouth import MOUTH_POINTS, UPPER_SIDE
+    from facedeform.codec.model.mouth import MOUTH_POINTS, UPPER_SIDE
     for point, lm in MOUTH_POINTS.items():
         v = np.array([0.01, 0.02 if point in UPPER_SIDE else -0.02, 0.03])  # lips apart: nothing folds
         p = params(**{f"{point}_{a}": c for a, c in zip("xyz", v)})
@@ -211,7 +211,7 @@ def test_jaw_shift_moves_the_mandible_rigidly_and_leaves_the_upper_face():
 def test_mouth_tiling_blends_agree_on_shared_edges_and_vanish_on_its_rim():
     """Points on an edge shared by two tiles get the same weights from either; rim edges carry paper
     points only, whose vectors are 0 here, so the mouth term is continuous (the slit aside)."""
-    from facedeform.codec.mouth import MOUTH_POINTS
+    from facedeform.codec.model.mouth import MOUTH_POINTS
     tris, o = DEF.mouth.triangles, DEF.regions.origin
     t = np.linspace(0.05, 0.95, 7)[:, None]
     count = {}

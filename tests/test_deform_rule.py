@@ -10,10 +10,10 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial.transform import Rotation
 
-from facedeform.codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, PRESETS, Deformer, extended_params
-from facedeform.codec.face_model import load_base_face
-from facedeform.codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
-from facedeform.codec.regions import RULES
+from facedeform.codec.model.deform import EXTENDED_PARAMS, PAPER_PARAMS, PRESETS, Deformer, extended_params
+from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.model.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
+from facedeform.codec.model.regions import RULES
 from facedeform.common.errors import InputError
 from facedeform.sender.analysis import LAYOUTS
 

@@ -5,9 +5,9 @@ import cv2
 import numpy as np
 import pytest
 
-from facedeform.codec.face_file import Face, face_id
-from facedeform.codec.face_model import load_base_face
-from facedeform.codec.picture import face_texture
+from facedeform.codec.face_file.format import Face, face_id
+from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.render.picture import face_texture
 from facedeform.sender.enroll import main
 from tests.support import CLIP
 

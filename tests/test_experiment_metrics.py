@@ -116,7 +116,7 @@ def test_alignment_removes_a_similarity_but_not_a_change_of_shape():
 
 def face_track(t=12, scale=200.0, opening=0.03):
     """(t, 468, 3) pixel landmarks of the base face whose jaw line and lower lip drop over time."""
-    from facedeform.codec.face_model import load_base_face
+    from facedeform.codec.model.face_model import load_base_face
     from facedeform.sender.fidelity import MOUTH_JAW_LANDMARKS
 
     v = load_base_face().vertices

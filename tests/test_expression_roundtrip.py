@@ -2,8 +2,8 @@
 come out closing and wide open, measured by the tracker on the drawn picture.
 
 The clip is the bundled speaker's own reference picture, drawn by the receiver's picture view with
-a face made by hand: the lid model shut (codec/upper_face.py, lid 1 lays each upper lid on the
-lower; codec/eyelids.py draws the shut lids' skin) and the lower face pulled down below the
+a face made by hand: the lid model shut (codec/model/upper_face.py, lid 1 lays each upper lid on the
+lower; codec/render/eyelids.py draws the shut lids' skin) and the lower face pulled down below the
 mouth's slit. It is enrolled as a user enrols (its first second, its motion basis from all of it),
 sent at fd-send's defaults and drawn by the library.
 """
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import facedeform
-from facedeform.codec.deform import EXTENDED_PARAMS, Deformer
+from facedeform.codec.model.deform import EXTENDED_PARAMS, Deformer
 from facedeform.experiment.clips import track
 from facedeform.receiver.face_view import PictureView
 from facedeform.sender.calibrate import LOWER_LIP, UPPER_LIP, eye_opening, lip_gap

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from facedeform.codec.deform import EXTENDED_PARAMS, Deformer
-from facedeform.codec.expressions import (
+from facedeform.codec.model.deform import EXTENDED_PARAMS, Deformer
+from facedeform.codec.model.expressions import (
     AU_FILE,
     EXPRESSION_FILE,
     au_params,
@@ -17,7 +17,7 @@ from facedeform.codec.expressions import (
     expression_params,
     load_tables,
 )
-from facedeform.codec.face_model import load_base_face
+from facedeform.codec.model.face_model import load_base_face
 from facedeform.common.errors import InputError
 from facedeform.receiver.animate import interpolate, main
 

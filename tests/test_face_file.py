@@ -8,8 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from facedeform.codec.deform import PAPER_PARAMS, Deformer
-from facedeform.codec.face_file import (
+from facedeform.codec.face_file.format import (
     _PACKING,
     VERTEX_STEPS,
     Face,
@@ -18,7 +17,8 @@ from facedeform.codec.face_file import (
     personal_face,
     save_face_file,
 )
-from facedeform.codec.picture import Placement
+from facedeform.codec.model.deform import PAPER_PARAMS, Deformer
+from facedeform.codec.render.picture import Placement
 from facedeform.common.errors import InputError
 from tests.support import BASE, a_person, a_picture, a_picture_with_a_mouth, as_version, with_info
 
@@ -114,7 +114,7 @@ def test_the_reference_picture_round_trips():
 
 
 def test_files_of_older_versions_are_still_read():
-    from facedeform.codec.motion_basis import MotionBasis
+    from facedeform.codec.model.motion_basis import MotionBasis
 
     neutral, texture = a_person()
     motion = MotionBasis(np.array([100, 101, 102]), np.random.default_rng(3).normal(0, 0.1, (2, 3, 3)))
@@ -134,7 +134,7 @@ def test_files_of_older_versions_are_still_read():
 
 
 def test_a_picture_replaces_the_texture_and_the_generic_features_take_no_bytes():
-    from facedeform.codec.picture import face_texture
+    from facedeform.codec.render.picture import face_texture
 
     neutral, texture = a_person()
     with_texture = personal_face(neutral, texture, picture=a_picture())
@@ -262,7 +262,7 @@ def test_hostile_open_mouth_fields_are_refused_in_one_line(changes, message):
 def test_version_6_keeps_only_what_a_receiver_cannot_derive():
     """The generic topology and uv are named, not stored; the vertices are steps from the generic
     face's, within half a step of the fitted ones; the rest is packed."""
-    from facedeform.codec.face_model import normalise
+    from facedeform.codec.model.face_model import normalise
 
     neutral, _ = a_person()
     data = personal_face(neutral, None, picture=a_picture())
@@ -311,7 +311,7 @@ def test_a_packed_mesh_is_never_inflated_past_its_declared_size():
     """A small packed section of zeros that would inflate to megabytes stops at the declared size."""
     import lzma
 
-    from facedeform.codec.face_file import _PACKING
+    from facedeform.codec.face_file.format import _PACKING
 
     neutral, texture = a_person()
     data = personal_face(neutral, texture)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from facedeform.codec.deform import PAPER_PARAMS
-from facedeform.codec.face_model import load_base_face
+from facedeform.codec.model.deform import PAPER_PARAMS
+from facedeform.codec.model.face_model import load_base_face
 from facedeform.common.errors import BitstreamError
 from facedeform.protocol.stream import Header, steps_for
 from facedeform.receiver.face_view import FaceView

@@ -1,9 +1,9 @@
-"""The picture layer's video and blocks (codec/frame_video.py), apart from a call."""
+"""The picture layer's video and blocks (codec/render/frame_video.py), apart from a call."""
 
 import numpy as np
 import pytest
 
-from facedeform.codec.frame_video import (
+from facedeform.codec.render.frame_video import (
     BLOCK,
     VideoDecoder,
     VideoEncoder,

@@ -15,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from facedeform.codec.face_file import decode_face, encode_face, personal_face
+from facedeform.codec.face_file.format import decode_face, encode_face, personal_face
 from facedeform.common.errors import FdError
 from tests.support import a_person, a_picture_with_a_mouth, with_info
 

@@ -15,9 +15,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from facedeform.codec import face_file
-from facedeform.codec.face_file import decode_face, encode_face, personal_face
-from facedeform.codec.image_header import image_size
+from facedeform.codec.face_file import format as face_file
+from facedeform.codec.face_file.format import decode_face, encode_face, personal_face
+from facedeform.codec.face_file.image_header import image_size
 from facedeform.common.errors import BitstreamError, InputError
 from facedeform.common.limits import MAX_SIDE
 from facedeform.protocol.header import encode_header, parse_header

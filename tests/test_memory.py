@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import facedeform.sender.tracker
-from facedeform.codec.face_model import load_base_face
+from facedeform.codec.model.face_model import load_base_face
 from facedeform.receiver.session import ReceiveSession
 from facedeform.receiver.transport import open_file
 from facedeform.sender.analysis import FaceAnalyser, Smoothing

@@ -9,11 +9,11 @@ import sys
 import numpy as np
 import pytest
 
-from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
-from facedeform.codec.face_file import _PACKING, Face, decode_face, encode_face
-from facedeform.codec.face_model import load_base_face
-from facedeform.codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS, MotionBasis, learn_basis
-from facedeform.codec.upper_face import LID_PARAMS
+from facedeform.codec.face_file.format import _PACKING, Face, decode_face, encode_face
+from facedeform.codec.model.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
+from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.model.motion_basis import BASIS_PARAMS, MAX_COMPONENTS, MotionBasis, learn_basis
+from facedeform.codec.model.upper_face import LID_PARAMS
 from facedeform.common.errors import InputError
 from facedeform.protocol.quantise import DEAD_ZONE
 from facedeform.sender.fit import ModelFit

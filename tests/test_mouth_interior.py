@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 import facedeform
-from facedeform.codec.face_model import mouth_vertices
-from facedeform.codec.mouth_interior import MouthInterior
+from facedeform.codec.model.face_model import mouth_vertices
+from facedeform.codec.render.mouth_interior import MouthInterior
 from facedeform.receiver.face_view import PictureView
 from facedeform.sender.session import stream_header
 from tests.support import CLIP

@@ -7,22 +7,22 @@ import cv2
 import numpy as np
 import pytest
 
-from facedeform.codec.camera import Camera
-from facedeform.codec.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, Deformer
-from facedeform.codec.face_file import Face, decode_face, encode_face, save_face_file
-from facedeform.codec.face_model import ReferencePicture, load_base_face, mouth_vertices
-from facedeform.codec.picture import (
+from facedeform.codec.face_file.format import Face, decode_face, encode_face, save_face_file
+from facedeform.codec.model.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, Deformer
+from facedeform.codec.model.face_model import ReferencePicture, load_base_face, mouth_vertices
+from facedeform.codec.model.head_pose import head_pivot
+from facedeform.codec.render.camera import Camera
+from facedeform.codec.render.picture import (
     RINGS,
     Placement,
     SceneMesh,
     frame_placement,
     global_matrix,
     global_motion,
-    head_pivot,
     outer_loop,
     relative_pose,
 )
-from facedeform.codec.render import Renderer
+from facedeform.codec.render.render import Renderer
 from facedeform.common.errors import InputError
 from facedeform.protocol.stream import Header, steps_for
 from facedeform.receiver.face_view import FaceView, PictureView, default_look, open_view
@@ -329,7 +329,7 @@ def test_a_bad_look_is_one_line(capsys):
 
 
 def test_the_picture_look_without_a_picture_is_one_line(scene, tmp_path, capsys):
-    from facedeform.codec.face_file import read_face_bytes
+    from facedeform.codec.face_file.format import read_face_bytes
     from facedeform.receiver.cli import main
 
     _, _, face, stream, path = scene

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import facedeform
-from facedeform.codec.frame_video import VideoEncoder
+from facedeform.codec.render.frame_video import VideoEncoder
 from facedeform.protocol.framing import PICTURE, SYNC, build, packet_size, packet_type, varint
 from facedeform.protocol.stream import DatagramDecoder, Frame, Picture, StreamDecoder, frame_bytes
 from facedeform.receiver.face_view import PictureView

@@ -3,7 +3,8 @@
 import cv2
 import numpy as np
 
-from facedeform.sender.pose import fit_pose, image_to_face_axes
+from facedeform.codec.model.head_pose import image_to_face_axes
+from facedeform.sender.pose import fit_pose
 
 
 def test_fit_recovers_a_similarity():

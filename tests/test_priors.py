@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from facedeform.codec.face_model import load_base_face
+from facedeform.codec.model.face_model import load_base_face
 from facedeform.protocol import priors
 from facedeform.protocol.entropy import GroupState
 from facedeform.protocol.quantise import QUALITIES

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from facedeform.codec.deform import PAPER_PARAMS
+from facedeform.codec.model.deform import PAPER_PARAMS
 from facedeform.common.errors import BitstreamError, FdError
 from facedeform.common.limits import MAX_SIDE
 from facedeform.protocol.basis import SCALE

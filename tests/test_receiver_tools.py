@@ -9,7 +9,7 @@ import socket
 import numpy as np
 import pytest
 
-from facedeform.codec.face_file import decode_face
+from facedeform.codec.face_file.format import decode_face
 from facedeform.protocol.stream import PacketEncoder, frame_bytes
 from tests.support import (
     DEADLINE,

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from facedeform.codec import raster
-from facedeform.codec.camera import Camera
-from facedeform.codec.face_parts import (
+from facedeform.codec.render import raster
+from facedeform.codec.render.camera import Camera
+from facedeform.codec.render.face_parts import (
     IRIS_SCALE,
     LIPS_GAP,
     TEETH_BAND,
@@ -15,8 +15,8 @@ from facedeform.codec.face_parts import (
     eye_pieces,
     teeth_columns,
 )
-from facedeform.codec.raster import MOUTH_DARK, PUPIL, SCLERA
-from facedeform.codec.render import DirectionalLight, Material, Renderer, linear_to_srgb, srgb_to_linear
+from facedeform.codec.render.raster import MOUTH_DARK, PUPIL, SCLERA
+from facedeform.codec.render.render import DirectionalLight, Material, Renderer, linear_to_srgb, srgb_to_linear
 
 FLAT = Material(albedo=(1.0, 1.0, 1.0), ambient=1.0, specular=0.0)  # output = albedo/texture
 
@@ -246,7 +246,7 @@ def test_reused_renderer_matches_fresh_one():
 
 @pytest.mark.slow
 def test_face_renders_eyes_mouth_and_depth():
-    from facedeform.codec.face_model import load_base_face
+    from facedeform.codec.model.face_model import load_base_face
 
     face = load_base_face()
     camera = Camera.perspective(20.0, eye=(0, 0, 4.4), target=(0, 0, 0))
@@ -325,7 +325,7 @@ def reference_eye_discs(vertices, faces, eyes, irises):
 
 @pytest.mark.parametrize("irises", [np.zeros((0, 3)), np.array([[0.3, 0.2, 0.1], [-0.3, 0.2, 0.1]])])
 def test_eye_discs_match_reference(irises):
-    from facedeform.codec.face_model import load_base_face
+    from facedeform.codec.model.face_model import load_base_face
 
     face = load_base_face()
     faces = face.faces.astype(np.int32)
@@ -353,8 +353,8 @@ def reference_teeth_columns(screen, mouth_vertices, width):
 
 @pytest.mark.parametrize("opening", [0.0, 8.0])
 def test_teeth_columns_match_reference(opening):
-    from facedeform.codec.deform import Deformer
-    from facedeform.codec.face_model import load_base_face
+    from facedeform.codec.model.deform import Deformer
+    from facedeform.codec.model.face_model import load_base_face
 
     face = load_base_face()
     params = np.zeros(13)

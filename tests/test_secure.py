@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from facedeform.codec.deform import PAPER_PARAMS, POSE_PARAMS
-from facedeform.codec.upper_face import UPPER_PARAMS
+from facedeform.codec.model.deform import PAPER_PARAMS, POSE_PARAMS
+from facedeform.codec.model.upper_face import UPPER_PARAMS
 from facedeform.common.errors import BitstreamError, FdError, InputError
 from facedeform.common.keys import key_id, parse_key
 from facedeform.protocol.decoder import PacketDecoder

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from facedeform.codec.face_file import Face, decode_face, save_face_file
+from facedeform.codec.face_file.format import Face, decode_face, save_face_file
 from facedeform.common.errors import InputError
 from facedeform.common.keys import read_key
 from facedeform.protocol.secure import SecureSealer

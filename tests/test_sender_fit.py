@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from facedeform.codec.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer, extended_params
-from facedeform.codec.face_model import load_base_face
-from facedeform.codec.mouth import MOUTH_PARAMS
-from facedeform.codec.upper_face import UPPER_PARAMS
+from facedeform.codec.model.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer, extended_params
+from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.model.mouth import MOUTH_PARAMS
+from facedeform.codec.model.upper_face import UPPER_PARAMS
 from facedeform.sender.fidelity import fidelity
 from facedeform.sender.fit import ModelFit
 

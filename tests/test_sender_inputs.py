@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from facedeform.codec.face_model import load_base_face
+from facedeform.codec.model.face_model import load_base_face
 from facedeform.protocol.stream import DatagramDecoder, Frame, StreamDecoder
 from tests.support import CLIP, SEND, assert_one_line_error, run
 

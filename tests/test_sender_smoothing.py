@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from facedeform.codec.face_model import load_base_face
+from facedeform.codec.model.face_model import load_base_face
 from facedeform.protocol.stream import PacketEncoder
 from facedeform.sender.analysis import FaceAnalyser, Smoothing
 from facedeform.sender.session import stream_header

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from facedeform.codec.face_model import load_base_face
+from facedeform.codec.model.face_model import load_base_face
 from facedeform.sender.texture import texture_from_frame, uv_to_texel
 
 FACE = load_base_face()

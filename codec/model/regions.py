@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facedeform.codec.face_model import BaseFace
+from facedeform.codec.model.face_model import BaseFace
 from facedeform.common.errors import InputError
 
 FEATURE_NAMES: tuple[str, ...] = tuple(f"F{i}" for i in range(1, 16))

@@ -2,7 +2,7 @@
 
 A blend of feature vectors is linear, so vectors that carry one point past its
 neighbours (a lower lip sent down into the chin) turn the skin between them
-inside out. The refined rule (codec/deform.py) uses this to keep every triangle
+inside out. The refined rule (codec/model/deform.py) uses this to keep every triangle
 facing its own way; tests use it to say what a fold is.
 """
 

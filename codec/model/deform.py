@@ -9,18 +9,18 @@ Per frame the sender gives theta (degrees) and the vectors V2, V3, V8, V9:
 Fixed points (F1, F5, F6, F7, F10, F11, F12, F13) have V = 0. Everything that
 does not depend on the parameters is precomputed, so deform() is a few numpy ops.
 
-deform_extended() adds the upper face (codec/upper_face.py: brows, lids,
-cheeks; gaze is for the renderer), the richer mouth and jaw (codec/mouth.py),
+deform_extended() adds the upper face (codec/model/upper_face.py: brows, lids,
+cheeks; gaze is for the renderer), the richer mouth and jaw (codec/model/mouth.py),
 the person's own motion basis when their face model has one
-(codec/motion_basis.py) and then a rigid head pose, with the parameters of
+(codec/model/motion_basis.py) and then a rigid head pose, with the parameters of
 EXTENDED_PARAMS.
 
-The refined rule (codec/regions.py) also guards against folds. A linear blend
+The refined rule (codec/model/regions.py) also guards against folds. A linear blend
 turns skin inside out once a vector carries a point past its neighbours (a
 lower lip sent down into the chin, which F4 only the jaw moves); the paper's
 rule draws that as sent. The refined rule draws instead anchor + s (sent -
 anchor) with the largest s (bisection) that leaves every skin triangle below
-the upper face facing its own way (codec/folds.py), the anchor being the first
+the upper face facing its own way (codec/model/folds.py), the anchor being the first
 of these that folds nothing: the sent face with its lower lip where the jaw
 carries it; the jaw alone; the face at rest below the eyes. Brows, lids and
 cheeks are drawn as sent. It changes no face that does not fold. The sender fits
@@ -31,12 +31,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from facedeform.codec.face_model import BaseFace
-from facedeform.codec.folds import Facing
-from facedeform.codec.motion_basis import BASIS_PARAMS, MAX_COMPONENTS
-from facedeform.codec.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS, MouthModel, build_mouth
-from facedeform.codec.regions import DEFAULT_RULE, FEATURE_NAMES, RegionMap, build_region_map, feature_positions
-from facedeform.codec.upper_face import GAZE_PARAMS, UPPER_PARAMS, EyeModel, UpperFace, build_upper_face
+from facedeform.codec.model.face_model import BaseFace
+from facedeform.codec.model.folds import Facing
+from facedeform.codec.model.head_pose import head_pivot, rotation_from_vector, rotation_matrix
+from facedeform.codec.model.motion_basis import BASIS_PARAMS, MAX_COMPONENTS
+from facedeform.codec.model.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS, MouthModel, build_mouth
+from facedeform.codec.model.regions import DEFAULT_RULE, FEATURE_NAMES, RegionMap, build_region_map, feature_positions
+from facedeform.codec.model.upper_face import GAZE_PARAMS, UPPER_PARAMS, EyeModel, UpperFace, build_upper_face
 
 PAPER_PARAMS: tuple[str, ...] = (
     "theta", "v2x", "v2y", "v2z", "v3x", "v3y", "v3z",
@@ -56,7 +57,6 @@ EXTENDED_PARAMS: tuple[str, ...] = (PAPER_PARAMS + UPPER_PARAMS + GAZE_PARAMS + 
 KEEP_FACING = 0.05
 #: Bisection steps of the guard: what it keeps of the motion is within 2^-12 of the most that folds nothing.
 FOLD_STEPS = 12
-HEAD_DEPTH = 0.6  # the head turns about a point this far behind the face's bounding-box centre
 _UPPER = slice(len(PAPER_PARAMS), len(PAPER_PARAMS) + len(UPPER_PARAMS))
 _GAZE = slice(_UPPER.stop, _UPPER.stop + len(GAZE_PARAMS))
 _ROT = slice(_GAZE.stop, _GAZE.stop + 3)
@@ -74,29 +74,6 @@ def extended_params(names, params: np.ndarray) -> np.ndarray:
     full = np.zeros(params.shape[:-1] + (len(EXTENDED_PARAMS),))
     full[..., [EXTENDED_PARAMS.index(n) for n in names]] = params
     return full
-
-
-def rotation_matrix(axis: np.ndarray, theta_deg: float) -> np.ndarray:
-    """(3, 3) right-handed rotation by theta_deg about the unit vector axis (Rodrigues)."""
-    t = np.radians(theta_deg)
-    x, y, z = axis
-    k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return np.eye(3) + np.sin(t) * k + (1.0 - np.cos(t)) * (k @ k)
-
-
-def rotation_from_vector(rvec_deg: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation of a (3,) rotation vector in degrees (axis times angle), as the stream sends the head's."""
-    rvec = np.asarray(rvec_deg, dtype=np.float64)
-    angle = float(np.linalg.norm(rvec))
-    return rotation_matrix(rvec / angle, angle) if angle > 0 else np.eye(3)
-
-
-def rotation_vector(rotation: np.ndarray) -> np.ndarray:
-    """(3,) rotation vector in degrees of a (3, 3) rotation: :func:`rotation_from_vector` inverted."""
-    import cv2
-
-    rvec, _ = cv2.Rodrigues(np.ascontiguousarray(rotation))
-    return np.degrees(rvec.ravel())
 
 
 class Deformer:
@@ -130,7 +107,7 @@ class Deformer:
         self.mouth: MouthModel = build_mouth(face, self.regions)
         n = len(self._base)
         self._motion = face.motion.matrix(n) if face.motion is not None else np.zeros((3 * n, MAX_COMPONENTS))
-        self._pivot = 0.5 * (self._base.min(axis=0) + self._base.max(axis=0)) - [0.0, 0.0, HEAD_DEPTH]
+        self._pivot = head_pivot(self._base)
         lower = ~(self.upper.region >= 0)[face.faces].any(axis=1)  # the upper face's own blink folds stay its own
         fills = face.mouth_faces | face.eye_faces
         self._facing = Facing(self._base, face.faces[lower], fills[lower]) if rule == "refined" else None

@@ -10,15 +10,15 @@ The JSON holds the counts (``vertices``, ``faces``, ``texture`` bytes, and
 ``motion``: [moved vertices k, patterns c, what they are over], absent without a basis) and the
 feature points, regions and loops (``meta``, as codec/data/feature_points.json),
 so a file is complete on its own and the Deformer takes it unchanged. The
-motion basis (version 2; codec/motion_basis.py) is the moved vertices' indices
+motion basis (version 2; codec/model/motion_basis.py) is the moved vertices' indices
 <u2 (k) then the patterns <f4 (c, k, 3); version 1 files have none. Version 3
-adds the person's whole reference picture (codec/picture.py): ``picture`` in the
+adds the person's whole reference picture (codec/render/picture.py): ``picture`` in the
 JSON is [bytes, width, height] and ``projection`` the (3, 4) similarity from
 model points to its pixels (x right, y down) and depth; optionally their open
 mouth, ``mouth`` [bytes, width, height] after the picture, with ``mouth_points``
 the pixel positions in it of the mouth opening's vertices. Version 4 adds ``rings``
 in the JSON: how far each ring vertex around the face follows the head
-(codec/picture.SceneMesh, sender/motion_global.RingWeights), 0-255 for 0-1, and
+(codec/render/picture.SceneMesh, sender/motion_global.RingWeights), 0-255 for 0-1, and
 takes fewer bytes: ``meta`` may be "base" (the generic face's, codec/data), the
 motion basis's patterns are <f2, and a file with a reference picture may leave the
 texture out (the face is then textured by the picture where the projection puts
@@ -68,7 +68,8 @@ import numpy as np
 from cryptography.exceptions import InvalidTag
 from cryptography.hazmat.primitives.ciphers.aead import AESGCM
 
-from facedeform.codec.face_model import (
+from facedeform.codec.face_file.image_header import image_size
+from facedeform.codec.model.face_model import (
     N_LANDMARKS,
     BaseFace,
     ReferencePicture,
@@ -77,9 +78,8 @@ from facedeform.codec.face_model import (
     mouth_vertices,
     normalise,
 )
-from facedeform.codec.image_header import image_size
-from facedeform.codec.motion_basis import MAX_COMPONENTS, OVER, MotionBasis
-from facedeform.codec.picture import RINGS, Placement, outer_loop
+from facedeform.codec.model.motion_basis import MAX_COMPONENTS, OVER, MotionBasis
+from facedeform.codec.render.picture import RINGS, Placement, outer_loop
 from facedeform.common.errors import InputError
 from facedeform.common.keys import derive
 from facedeform.common.limits import MAX_SIDE

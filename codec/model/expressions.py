@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from facedeform.codec.data import data_path
-from facedeform.codec.deform import EXTENDED_PARAMS
+from facedeform.codec.model.deform import EXTENDED_PARAMS
 from facedeform.common.errors import InputError
 
 AU_FILE = data_path("au_table.json")

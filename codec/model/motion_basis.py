@@ -7,7 +7,7 @@ vertex), by a singular value decomposition, the few displacement patterns
 leaves over (``over="paper"``: the patterns refine the paper's 13 parameters)
 or the whole motion from the rest face (``over="rest"``: the patterns replace
 them, fewer numbers for the same fidelity on the dev clips). The patterns are
-shared once inside the face model file (codec/face_file.py); each frame then
+shared once inside the face model file (codec/face_file/format.py); each frame then
 carries a coefficient per pattern (``basis_0``, ``basis_1``, ...), added to the
 deformed mesh like any other linear term.
 

@@ -1,7 +1,7 @@
 """The person's open mouth in a mouth less open: teeth at their own size, the lips closing over them.
 
 The whole picture draws the mouth opening from the person's own open mouth (the enrolment's
-widest, codec/picture.SceneMesh). The mesh maps that picture onto the opening as it is now, so
+widest, codec/render/picture.SceneMesh). The mesh maps that picture onto the opening as it is now, so
 a mouth half as open drew both rows of teeth at half their height: a thin band of small teeth
 where a speaker shows the upper teeth's edges (seen on sadtalker_WDA_KatieHill). Here the
 picture is remapped first, column by column between the inner lips: its upper half shows the

@@ -138,7 +138,7 @@ class Renderer:
         self._light_dir, self._light_rgb = _lights(tuple(lights))
         self._flat = not lights  # ambient light alone: no normals to interpolate, nothing to light
         # a texture drawn as it is (a picture's own light, one sample a pixel) is sampled by an image
-        # warp, in its own sRGB encoding (codec/raster.py, maps): a quarter of the memory, no conversions
+        # warp, in its own sRGB encoding (codec/render/raster.py, maps): a quarter of the memory, no conversions
         self._own = self._flat and ambient == 1.0 and supersample == 1 and texture is not None
         self._background = self._parse_background(background)
         self._uv, self._texture = self._parse_texture(uv, texture)

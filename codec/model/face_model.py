@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from facedeform.codec.data import data_path
-from facedeform.codec.motion_basis import MotionBasis
+from facedeform.codec.model.motion_basis import MotionBasis
 from facedeform.common.errors import InputError
 
 DEFAULT_DIR = data_path("")
@@ -43,10 +43,10 @@ class BaseFace:
     mouth_faces / eye_faces (m,) bool mark the triangles filling the mouth
     opening and the eyes; content_id is the sha256 hex that names the model in
     the stream header; meta is the parsed feature_points.json (regions, O);
-    texture (h, w, 3) uint8 RGB or None: a person's own skin (codec/face_file.py),
+    texture (h, w, 3) uint8 RGB or None: a person's own skin (codec/face_file/format.py),
     None for the generic face, which the renderer shades in a plain material;
-    motion: the person's own motion basis (codec/motion_basis.py) or None;
-    picture: the person's whole reference picture and where the face sits in it (codec/picture.py), or None.
+    motion: the person's own motion basis (codec/model/motion_basis.py) or None;
+    picture: the person's whole reference picture and where the face sits in it (codec/render/picture.py), or None.
     """
 
     vertices: np.ndarray
@@ -69,7 +69,7 @@ class ReferencePicture:
     (h, w, 3) uint8 RGB or None: their open mouth, from another frame, and mouth_points (k, 2)
     float64: where the vertices of the mouth opening (``mouth_vertices``) are in it, in pixels;
     ring_weights (rings x boundary,) float64 in 0..1 or None: how far each vertex of the receiver's
-    rings around the face follows the head (codec/picture.SceneMesh), as enrolment measured it."""
+    rings around the face follows the head (codec/render/picture.SceneMesh), as enrolment measured it."""
 
     image: np.ndarray
     projection: np.ndarray

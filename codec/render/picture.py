@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from facedeform.codec.deform import HEAD_DEPTH, rotation_from_vector, rotation_vector
-from facedeform.codec.face_model import BaseFace, ReferencePicture, mouth_vertices
-from facedeform.codec.mouth_interior import MouthInterior
+from facedeform.codec.model.face_model import BaseFace, ReferencePicture, mouth_vertices
+from facedeform.codec.model.head_pose import head_pivot, rotation_from_vector, rotation_vector
+from facedeform.codec.render.mouth_interior import MouthInterior
 
 #: How far the receiver's camera is from the face (base-face units), to turn scale changes into
 #: depth: tz = VIEW_DISTANCE * (1 - 1 / s) for a head s times its reference size.
@@ -36,12 +36,6 @@ RING_DEPTH = 0.5
 HAIR_START = 1.3
 MOUTH_GAP = 4  # rows between the pictures and the open mouth below them in the texture
 _FLIP = np.array([1.0, -1.0, 1.0])  # picture axes <-> (pixel x, pixel y down, depth)
-
-
-def head_pivot(vertices: np.ndarray) -> np.ndarray:
-    """(3,) the point the head turns about: HEAD_DEPTH behind the centre of the face's bounding box."""
-    v = np.asarray(vertices, dtype=np.float64)
-    return 0.5 * (v.min(axis=0) + v.max(axis=0)) - [0.0, 0.0, HEAD_DEPTH]
 
 
 @dataclass(frozen=True)
@@ -212,7 +206,7 @@ class SceneMesh:
         pixels = (np.concatenate([rest, ring_rest]) * _FLIP)[:, :2]
         face_triangles, mouth = faces.copy(), face.mouth_faces
         self._mouth = np.zeros(0, np.int64)
-        #: the person's open mouth as a mouth less open shows it (codec/mouth_interior.py), when drawn,
+        #: the person's open mouth as a mouth less open shows it (codec/render/mouth_interior.py), when drawn,
         #: and the texture's row where it starts (column 0)
         self.interior: MouthInterior | None = None
         self.mouth_row = 0

@@ -10,7 +10,7 @@ new ones; Delaunay in the central projection from O), area weights of each
 vertex's projection. Paper points carry no vector here, so this is an additive
 linear term that vanishes on the tiling's rim (made of paper points only): with
 zero mouth parameters the deformation is exactly the paper's. The mouth slit
-is kept as in codec/regions.py: an upper inner-lip vertex never blends a
+is kept as in codec/model/regions.py: an upper inner-lip vertex never blends a
 lower-lip point, and the reverse.
 
 ``jaw_x, jaw_y, jaw_z`` translate the mandible (sideways; and down and forward,
@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import Delaunay
 
-from facedeform.codec.face_model import BaseFace
-from facedeform.codec.regions import COVER_TOL, FEATURE_NAMES, RegionMap, project_weights
+from facedeform.codec.model.face_model import BaseFace
+from facedeform.codec.model.regions import COVER_TOL, FEATURE_NAMES, RegionMap, project_weights
 
 #: New free points: name -> landmark. "l"/"r": face-left (+x) / face-right; "u"/"l" upper / lower lip.
 MOUTH_POINTS = {"lip_ul": 311, "lip_ur": 81, "lip_ll": 402, "lip_lr": 178, "lip_uo": 0, "lip_lo": 17}

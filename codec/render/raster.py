@@ -25,7 +25,7 @@ A mesh drawn without lights and with its texture as it is (the whole picture)
 skips normals and shading, and its textured pixels are left to an image warp:
 draw writes each one's texel position into a map and marks it, and OpenCV's
 remap samples the texture there, in its own sRGB encoding, for the marked
-pixels (codec/render.py). A bilinear lookup is the fragment's whole cost, and
+pixels (codec/render/render.py). A bilinear lookup is the fragment's whole cost, and
 remap's SIMD code does it in a third of the time Numba's scalar code takes
 (docs/hd.md).
 

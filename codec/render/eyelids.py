@@ -22,7 +22,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from facedeform.codec.face_model import BaseFace
+from facedeform.codec.model.face_model import BaseFace
 
 #: Upper and lower lid middles and the corners of each eye (face-right, face-left): landmark indices.
 LIDS = ((159, 145), (386, 374))

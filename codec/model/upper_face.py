@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facedeform.codec.face_model import BaseFace
-from facedeform.codec.regions import RegionMap, project_weights
+from facedeform.codec.model.face_model import BaseFace
+from facedeform.codec.model.regions import RegionMap, project_weights
 
 UPPER_PARAMS: tuple[str, ...] = (
     "brow_l_y", "brow_r_y", "brow_inner", "brow_knit", "lid_l", "lid_r", "cheek_l", "cheek_r",

@@ -1,0 +1,1 @@
+"""The face model: the base mesh, its regions, and the deformations the parameters drive."""
