@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from facedeform.codec.model.deform import PAPER_PARAMS, Deformer, extended_params
+from facedeform.codec.model.deform import Deformer, extended_params
 from facedeform.codec.model.face_model import load_base_face
+from facedeform.common.parameters import LAYOUTS, PAPER_PARAMS
 from facedeform.protocol.framing import DELTA, KEY, body_bits, kind_of
 from facedeform.protocol.quantise import QUALITIES
 from facedeform.protocol.stream import VERSION, Frame, PacketEncoder, StreamDecoder, frame_bytes
-from facedeform.sender.analysis import LAYOUTS
 from facedeform.sender.session import first_basis, read_dump, stream_header
 
 FACE_PX = 512 / 1.35  # receiver framing: the view is 1.35 face heights tall

@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 
 import facedeform
-from facedeform.codec.model.deform import GLOBAL_PARAMS, POSE_PARAMS, Deformer, extended_params
-from facedeform.codec.model.motion_basis import MAX_COMPONENTS
+from facedeform.codec.model.deform import Deformer, extended_params
+from facedeform.common.parameters import GLOBAL_PARAMS, MAX_COMPONENTS, POSE_PARAMS
 from facedeform.experiment import metrics
 from facedeform.experiment.clips import crops, track
 from facedeform.protocol.stream import frame_bytes

@@ -85,11 +85,11 @@ def receive(times_path: str, warm: bool) -> None:
     ``warm``: first draws a face once, loading the renderer's compiled kernels before the call
     (which fd-recv does once the header arrives)."""
     from facedeform.codec.model.face_model import load_base_face
+    from facedeform.common.parameters import LAYOUTS
     from facedeform.protocol.stream import Header, steps_for
     from facedeform.receiver.face_view import open_view
     from facedeform.receiver.session import ReceiveSession
     from facedeform.receiver.transport import Listener
-    from facedeform.sender.analysis import LAYOUTS
 
     if warm:
         face, names = load_base_face(), LAYOUTS["mouth"]

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import facedeform
-from facedeform.codec.model.motion_basis import MAX_COMPONENTS
+from facedeform.common.parameters import MAX_COMPONENTS
 from facedeform.experiment.clips import crops
 from facedeform.experiment.metrics import psnr_rgb
 from facedeform.protocol.stream import frame_bytes

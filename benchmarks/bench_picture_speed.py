@@ -22,9 +22,9 @@ import cv2
 import numpy as np
 
 from facedeform.codec.face_file.format import Face
-from facedeform.codec.model.deform import GLOBAL_PARAMS
 from facedeform.codec.model.face_model import ReferencePicture
 from facedeform.codec.render.picture import Placement
+from facedeform.common.parameters import GLOBAL_PARAMS
 from facedeform.protocol.stream import Header, steps_for
 from facedeform.receiver.face_view import PictureView
 

@@ -32,9 +32,10 @@ import numpy as np
 
 from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import load_base_face
+from facedeform.common.parameters import LAYOUTS
 from facedeform.protocol.quantise import DEAD_ZONE, DEFAULT_QUALITY, QUALITIES
 from facedeform.protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, quality_for_bitrate
-from facedeform.sender.analysis import LAYOUTS, FaceAnalyser, Smoothing
+from facedeform.sender.analysis import FaceAnalyser, Smoothing
 from facedeform.sender.calibrate import lip_gap
 from facedeform.sender.enrolment import MOTION_PATTERNS
 from facedeform.sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from facedeform.codec.model.face_model import load_base_face
+from facedeform.common.parameters import LAYOUTS
 from facedeform.experiment.metrics import psnr, ssim
 from facedeform.protocol.stream import PacketEncoder, frame_bytes
 from facedeform.receiver.face_view import BACKGROUND, FaceView
-from facedeform.sender.analysis import LAYOUTS
 from facedeform.sender.session import first_basis, read_dump, stream_header
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facedeform.codec.model.deform import GLOBAL_PARAMS, POSE_PARAMS
+from facedeform.common.parameters import GLOBAL_PARAMS, POSE_PARAMS
 from facedeform.protocol import layouts as layouts_module
 from facedeform.protocol.basis import SCALE
 from facedeform.protocol.layouts import table_bytes

@@ -16,9 +16,10 @@ import numpy as np
 
 import facedeform
 from facedeform.codec.face_file.format import Face
-from facedeform.codec.model.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer
+from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import load_base_face
 from facedeform.codec.render.picture import SceneMesh, frame_placement
+from facedeform.common.parameters import EXTENDED_PARAMS, POSE_PARAMS
 from facedeform.protocol.stream import Frame, Header, StreamDecoder, steps_for
 from facedeform.receiver.face_view import open_view
 from facedeform.receiver.output import VideoFileWriter

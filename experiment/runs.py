@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from facedeform.codec.model.motion_basis import MAX_COMPONENTS
 from facedeform.common.errors import FdError
+from facedeform.common.parameters import MAX_COMPONENTS
 from facedeform.experiment import metrics
 from facedeform.experiment.baselines import CODECS, encode_decode
 from facedeform.experiment.clips import Clip, read_y4m, track

@@ -20,8 +20,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from facedeform.common.errors import BitstreamError
-
 #: The header carries each entry as a signed byte, this many per unit.
 SCALE = 127
 #: Steps (rms) the sample's largest component must move for its axes to mean anything: below it the
@@ -57,11 +55,11 @@ def principal_basis(sample: np.ndarray, steps: np.ndarray, apart: Sequence[bool]
 
 def basis_matrices(basis: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """(forward (k, k), inverse (k, k)) float64 of an int8 ``basis``; BitstreamError if it is not
-    a (k, k) basis the encoder can invert."""
+    a (k, k) basis the encoder can invert; ValueError if it is not (parse_header reports that as damage)."""
     basis = np.asarray(basis)
     if basis.shape != (k, k) or basis.dtype != np.int8:
-        raise BitstreamError(f"basis must be a ({k}, {k}) int8 matrix")
+        raise ValueError(f"basis must be a ({k}, {k}) int8 matrix")
     forward = basis.astype(np.float64) / SCALE
     if not np.linalg.cond(forward) < MAX_CONDITION:
-        raise BitstreamError("basis is singular")
+        raise ValueError("basis is singular")
     return forward, np.linalg.inv(forward)

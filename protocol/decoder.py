@@ -15,6 +15,7 @@ included, are paid for by received bytes (docs/security.md, "Bounds").
 
 from collections import deque
 from collections.abc import Iterable
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -51,6 +52,21 @@ MAX_PICTURE = 1 << 18  # bytes of one picture layer payload: far more than any r
 MAX_SEEK = 1 << 16  # bytes searched for a header before the input is declared foreign
 
 
+@dataclass(frozen=True)
+class Read:
+    """What the bytes at a position came to: ``used`` > 0, a packet of that many bytes was read
+    (its ``events``, none for a copy already taken); ``used`` 0, none was, and ``wait`` says
+    whether more bytes may make one (never once the input has ended) or none is here."""
+
+    events: list = field(default_factory=list)
+    used: int = 0
+    wait: bool = False
+
+
+_NONE_HERE = Read()
+_WAIT = Read(wait=True)
+
+
 class PacketDecoder:
     """Whole packets in, events out: the core that the datagram, byte-stream and sealed decoders
     feed (:class:`DatagramDecoder`, :class:`StreamDecoder`, ``protocol.secure_stream``).
@@ -83,14 +99,13 @@ class PacketDecoder:
         self._model = bytearray()
         self._picture: tuple[int, int, bytearray] | None = None  # (frame, total, bytes so far)
         self._previous = b""
-        #: Bytes of input (junk and damage included) before the packet being read: its callers set it.
-        self.position = 0
+        self._position = 0  # bytes of input (junk and damage included) before the packet being read
         self._paid = 0  # where the last accepted frames packet ended
 
     def unpaid(self, size: int) -> int:
         """Bytes received since the last accepted frames packet, up to the end of the packet of
         ``size`` bytes being read."""
-        return self.position + size - self._paid
+        return self._position + size - self._paid
 
     @property
     def _header(self) -> Header:
@@ -105,67 +120,64 @@ class PacketDecoder:
         packets of at most that many frames and at least a byte)."""
         return MAX_COUNT * self.unpaid(size)
 
-    def packet(self, data: bytes) -> list:
-        """Events of one datagram's packets (:meth:`packets`) that start at :attr:`position`; a bad
+    def packet(self, data: bytes, at: int) -> list:
+        """Events of one datagram's packets (:meth:`packets`), ``at`` bytes into the input; a bad
         one is dropped and reported."""
-        events = self.packets(data)
+        events = self.packets(data, at)
         return self.damage("packet fails its check or cannot be decoded") if events is None else events
 
-    def packets(self, data: bytes) -> list | None:
-        """Events of the packets of one datagram, as on a byte stream; None (nothing changed) if none
+    def packets(self, data: bytes, at: int) -> list | None:
+        """Events of the packets of one datagram that starts ``at`` bytes into the input (junk and
+        damage included: what pays for frames), as on a byte stream; None (nothing changed) if none
         can be read here. Packets the decoder accepted last are skipped: a frames packet's datagram
         carries the packets before it again (``protocol.encoder.Datagrams``), so whichever of them
         were lost are decoded from the copies, in order. A packet that cannot be read here (a copy
         from before a late join) is passed over to the next sync byte: every packet but a delta
         starts with one, and a keyframe or framed packet is checked before it is decoded."""
-        data, base = bytes(data), self.position
+        data = bytes(data)
         events: list = []
         pos, accepted, repeated = 0, False, True
-        try:
-            while pos < len(data):
-                repeat = next((len(r) for r in self._recent if data.startswith(r, pos)), 0)
-                if repeat:
-                    pos += repeat
-                    continue
-                self.position = base + pos
-                got = self.accept_wire(data, pos, final=True)
-                if got is None or got[0] is None:  # a copy this decoder cannot use: try the next sync byte
-                    pos, repeated = data.find(SYNC, pos + 1), False
-                    if pos < 0:
-                        break
-                    continue
-                if data[pos] != SYNC or packet_type(data[pos + 1]) == KEY:  # a frames packet: what copies repeat
-                    self._recent.append(data[pos:pos + got[1]])
-                accepted = True
-                events += got[0]
-                pos += got[1]
-        finally:
-            self.position = base
+        while pos < len(data):
+            repeat = next((len(r) for r in self._recent if data.startswith(r, pos)), 0)
+            if repeat:
+                pos += repeat
+                continue
+            got = self.accept_wire(data, pos, True, at + pos)
+            if not got.used:  # a copy this decoder cannot use: try the next sync byte
+                pos, repeated = data.find(SYNC, pos + 1), False
+                if pos < 0:
+                    break
+                continue
+            if data[pos] != SYNC or packet_type(data[pos + 1]) == KEY:  # a frames packet: what copies repeat
+                self._recent.append(data[pos:pos + got.used])
+            accepted = True
+            events += got.events
+            pos += got.used
         if not accepted:
             if not (repeated and data):
                 return None
             self.stats.duplicates += 1  # a datagram of packets all taken before
         return events
 
-    def accept_wire(self, buf: bytes, pos: int, final: bool) -> tuple[list | None, int] | None:
-        """The packet at ``buf[pos]``: (events, bytes used), (None, 0) if it is not a valid packet
-        here (nothing changed), None if it may be one but more bytes are needed (never when
-        ``final``: ``buf`` then ends where the stream or datagram does)."""
+    def accept_wire(self, buf: bytes, pos: int, final: bool, at: int) -> Read:
+        """The packet at ``buf[pos]``, ``at`` bytes into the input; ``final``: ``buf`` ends where the
+        stream or datagram does."""
+        self._position = at
         if buf[pos] != SYNC:
             return self._self_delimited(buf, pos, final, DELTA)
         if pos + 1 >= len(buf):
-            return (None, 0) if final else None
+            return _NONE_HERE if final else _WAIT
         if packet_type(buf[pos + 1]) == KEY:
             got = self._self_delimited(buf, pos + 1, final, KEY)
-            return got if got is None or got[0] is None else (got[0], got[1] + 1)
+            return Read(got.events, got.used + 1) if got.used else got
         try:
             size = packet_size(buf, pos + 1)
         except BitstreamError:
-            return None, 0
+            return _NONE_HERE
         if size is None or pos + 1 + size > len(buf):
-            return (None, 0) if final else None
+            return _NONE_HERE if final else _WAIT
         events = self._framed(bytes(buf[pos + 1:pos + 1 + size]))
-        return (None, 0) if events is None else (events, 1 + size)
+        return _NONE_HERE if events is None else Read(events, 1 + size)
 
     def _framed(self, data: bytes) -> list | None:
         """Events of a header, model or end packet (from its type byte), None if not valid here."""
@@ -196,26 +208,26 @@ class PacketDecoder:
             self._previous = data
         return events
 
-    def _self_delimited(self, buf: bytes, pos: int, final: bool, kind: int) -> tuple[list | None, int] | None:
+    def _self_delimited(self, buf: bytes, pos: int, final: bool, kind: int) -> Read:
         """A keyframe packet (from its type byte) or delta packet at ``buf[pos]``."""
         if self.header is None and not (kind == KEY and self._known):
-            return None, 0
+            return _NONE_HERE
         try:
             got = self._key(buf, pos) if kind == KEY else self._delta(buf, pos)
         except Incomplete:
-            return (None, 0) if final or len(buf) - pos > MAX_BODY + 8 else None
+            return _NONE_HERE if final or len(buf) - pos > MAX_BODY + 8 else _WAIT
         except BitstreamError:
             got = None
         if got is None:
             previous = self._previous
             if previous and bytes(buf[pos:pos + len(previous)]) == previous:
                 self.stats.duplicates += 1
-                return [], len(previous)
-            return None, 0
+                return Read([], len(previous))
+            return _NONE_HERE
         events, data = got
         self.stats.packets += 1
         self._previous = data
-        return events, len(data)
+        return Read(events, len(data))
 
     def _key(self, buf: bytes, pos: int) -> tuple[list, bytes] | None:
         count = frame_count(buf[pos])
@@ -248,7 +260,7 @@ class PacketDecoder:
                                f"{self.unpaid(size)} bytes since the last frames allow", always=True), data
         events = self.damage("packets lost before a keyframe") if coded > self._next else []
         group.end_packet()
-        self._group, self._paid = group, self.position + size
+        self._group, self._paid = group, self._position + size
         return started + events + self._emit(coded, decoded), data
 
     def _delta(self, buf: bytes, pos: int) -> tuple[list, bytes] | None:
@@ -272,7 +284,7 @@ class PacketDecoder:
             group.restore(saved, dec.journal)
             return None
         group.end_packet()
-        self._paid = self.position + len(data)
+        self._paid = self._position + len(data)
         return self._emit(self._next, decoded), data
 
     @staticmethod
@@ -418,13 +430,14 @@ class DatagramDecoder(PacketDecoder):
 
     def __init__(self, known: Iterable[Header] = ()) -> None:
         super().__init__(known, late_join=True)
+        self._received = 0  # bytes of every datagram before this one
 
     def receive(self, data: bytes) -> list:
-        events = self.packets(data) if self.could_start(data) else None
+        events = self.packets(data, self._received) if self.could_start(data) else None
         if events is None:
             self.stats.skipped_bytes += len(data)
             events = []
-        self.position += len(data)
+        self._received += len(data)
         return events
 
     def could_start(self, data: bytes) -> bool:
@@ -496,7 +509,6 @@ class ByteStreamDecoder(WrapsPacketDecoder):
                 pos = len(buf) if pos < 0 else pos
                 events += self._skip(pos - start, "bytes between packets")
                 continue
-            self._core.position = self._base + pos
             step = self._packet_at(pos, final)
             if step is None:
                 break  # wait for the rest: a packet is at most MAX_BODY plus a few bytes
@@ -511,7 +523,8 @@ class ByteStreamDecoder(WrapsPacketDecoder):
         return self._buf[pos] == SYNC
 
     def _packet_at(self, pos: int, final: bool) -> tuple[list, int] | None:
-        """Events of the packet that starts at ``pos`` (sync byte included) and the bytes used; None to wait."""
+        """Events of the packet that starts at ``pos`` (sync byte included, ``self._base + pos`` bytes
+        into the input) and the bytes used; None to wait."""
         raise NotImplementedError
 
     def _no_stream(self) -> str:
@@ -542,14 +555,13 @@ class StreamDecoder(ByteStreamDecoder):
         return "input is not an fd stream (no valid header)"
 
     def _packet_at(self, pos: int, final: bool) -> tuple[list, int] | None:
-        got = self._core.accept_wire(self._buf, pos, final)
-        if got is None:
+        got = self._core.accept_wire(self._buf, pos, final, self._base + pos)
+        if got.wait:
             return None
-        events, used = got
-        if events is None:
+        if not got.used:
             return self._skip(1, "packet fails its check or cannot be decoded"), 1
         self._synced = True
-        return events, used
+        return got.events, got.used
 
     def _skip(self, n: int, reason: str) -> list:
         self._synced = False

@@ -13,6 +13,7 @@ import numpy as np
 
 from facedeform.common.errors import BitstreamError
 from facedeform.common.limits import MAX_SIDE
+from facedeform.common.parameters import PARAMETERS
 from facedeform.protocol.basis import basis_matrices
 from facedeform.protocol.framing import need_varint, varint
 from facedeform.protocol.layouts import shipped, shipped_index
@@ -54,6 +55,9 @@ class Header:
     output size; rule: the deformation rule the sender assumed, one of :data:`RULES`;
     basis: (k, k) int8 coding axes (``protocol.basis``) or None: the coded values are then
     coordinates along the axes, in steps, instead of one value per parameter.
+
+    A field out of range is ValueError (the caller's mistake); :func:`parse_header` reports a
+    stream's as BitstreamError.
     """
 
     fps: float
@@ -74,20 +78,21 @@ class Header:
     def __post_init__(self) -> None:
         names, steps = self.names, np.asarray(self.steps, dtype=np.float64)
         if not (1 <= len(names) <= MAX_NAMES and all(1 <= len(n) <= MAX_NAME and n.isascii() for n in names)):
-            raise BitstreamError(f"bad parameter layout: {names!r}")
+            raise ValueError(f"bad parameter layout: {names!r}")
         if steps.shape != (len(names),) or not np.all((steps > 0) & (steps <= MAX_STEP)):
-            raise BitstreamError(f"quantiser steps must be one number in (0, {MAX_STEP:g}] per parameter")
+            raise ValueError(f"quantiser steps must be one number in (0, {MAX_STEP:g}] per parameter")
         if not (0 < self.fps <= 1000 and 1 <= self.key_interval <= MAX_KEY_INTERVAL
                 and 1 <= self.divisor <= MAX_DIVISOR and 0 <= self.model_size <= MAX_MODEL
                 and 0 <= self.quality <= 255 and 0 <= self.width <= MAX_SIDE and 0 <= self.height <= MAX_SIDE):
-            raise BitstreamError("header field out of range")
+            raise ValueError("header field out of range")
         if self.rule not in RULES:
-            raise BitstreamError(f"unknown deformation rule {self.rule!r} (one of {', '.join(RULES)})")
+            raise ValueError(f"unknown deformation rule {self.rule!r} (one of {', '.join(RULES)})")
         try:
-            if len(bytes.fromhex(self.face_id)) != 32:
-                raise ValueError
+            whole = len(bytes.fromhex(self.face_id)) == 32
         except (ValueError, TypeError):
-            raise BitstreamError("face id must be a sha256 hex string") from None
+            whole = False
+        if not whole:
+            raise ValueError("face id must be a sha256 hex string")
         object.__setattr__(self, "steps", steps)
         self._forward: np.ndarray
         self._inverse: np.ndarray
@@ -120,7 +125,8 @@ class Header:
 
 def _level_steps(h: Header) -> bool:
     """Whether ``h``'s steps are exactly its quality level's."""
-    return h.quality in QUALITIES and np.array_equal(h.steps, steps_for(h.names, h.quality))
+    return (h.quality in QUALITIES and all(n in PARAMETERS for n in h.names)
+            and np.array_equal(h.steps, steps_for(h.names, h.quality)))
 
 
 def encode_header(h: Header) -> bytes:
@@ -178,15 +184,20 @@ def parse_header(body: bytes) -> Header:
         raise BitstreamError("stream header length does not match its layout")
     if step_bytes:
         steps = np.array(struct.unpack(f">{count}d", body[pos:pos + step_bytes]))
-    elif quality in QUALITIES:
-        steps = steps_for(tuple(names), quality)
-    else:
+    elif quality not in QUALITIES:
         raise BitstreamError(f"stream header takes the steps of quality level {quality}, which is none")
+    elif not all(n in PARAMETERS for n in names):
+        raise BitstreamError("stream header takes a quality level's steps for parameters without one")
+    else:
+        steps = steps_for(tuple(names), quality)
     if basis_bytes:
         basis = np.frombuffer(body, dtype=np.int8, count=basis_bytes, offset=pos + step_bytes).reshape(count, count)
-    return Header(fps_milli / 1000, tuple(names), steps, face_id, bool(flags & _FLAG_F3_WITH_JAW), quality,
-                  key_interval, divisor, bool(flags & _FLAG_STATIC), model_size, basis,
-                  width, height, RULES[rule])
+    try:
+        return Header(fps_milli / 1000, tuple(names), steps, face_id, bool(flags & _FLAG_F3_WITH_JAW), quality,
+                      key_interval, divisor, bool(flags & _FLAG_STATIC), model_size, basis,
+                      width, height, RULES[rule])
+    except ValueError as exc:
+        raise BitstreamError(f"stream header: {exc}") from None
 
 
 def _names(body: bytes, pos: int) -> tuple[list[str], int, int]:

@@ -13,29 +13,27 @@ decoder does not know the dead zone; it bounds the error instead of half a step.
 
 import numpy as np
 
-from facedeform.common.errors import BitstreamError
+from facedeform.common.parameters import PARAMETERS, STEPS
 
 QUALITIES = (1, 2, 3, 4, 5)  # coarse to fine
-DEFAULT_QUALITY = 3
-#: Steps at the default level: degrees for angles, base-face units for displacements, and for
-#: the lids (0 open .. 1 closed) a step that moves the lid about as far as VECTOR_STEP does.
-ANGLE_STEP = 0.25
-VECTOR_STEP = 0.002
-LID_STEP = 0.05
-ANGLES = ("theta", "rx", "ry", "rz", "gaze_yaw", "gaze_pitch", "gr")
-LIDS = ("lid_l", "lid_r")
+DEFAULT_QUALITY = 3  # the level whose steps the registry holds (common/parameters.py)
+#: A displacement's step at the default level, in base-face units.
+VECTOR_STEP = STEPS["length"]
 #: Default dead zone in steps: one step, as the sender's hold was before it moved here (then fixed at
 #: level 3's steps); 0.5 is plain rounding. Bits and errors of each are in docs/bitstream.md.
 DEAD_ZONE = 1.0
 
 
 def steps_for(names: tuple[str, ...], quality: int = DEFAULT_QUALITY) -> np.ndarray:
-    """(k,) float64 step of each named parameter; each level halves the steps of the one below."""
+    """(k,) float64 step of each named parameter; each level halves the steps of the one below.
+    ValueError for a level that is none or a name the registry does not hold."""
     if quality not in QUALITIES:
-        raise BitstreamError(f"quality must be one of {QUALITIES}, not {quality!r}")
+        raise ValueError(f"quality must be one of {QUALITIES}, not {quality!r}")
+    unknown = [n for n in names if n not in PARAMETERS]
+    if unknown:
+        raise ValueError(f"no parameter is named {unknown[0]!r}")
     scale = 2.0 ** (DEFAULT_QUALITY - quality)
-    return np.array([(ANGLE_STEP if n in ANGLES else LID_STEP if n in LIDS else VECTOR_STEP) * scale
-                     for n in names])
+    return np.array([PARAMETERS[n].step * scale for n in names])
 
 
 def quantise(values: np.ndarray, steps: np.ndarray) -> list[int]:

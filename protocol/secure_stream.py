@@ -33,6 +33,7 @@ class SecureDatagramDecoder(_Secure):
 
     def __init__(self, key: bytes, window: int = WINDOW, known=()) -> None:
         super().__init__(key, window, known)
+        self._received = 0  # bytes of every datagram before this one, junk too: what pays for frames
 
     def receive(self, data: bytes) -> list:
         events: list = []
@@ -40,8 +41,8 @@ class SecureDatagramDecoder(_Secure):
             self.opener.preamble(data)
         elif data != self.opener.accepted:  # a copy of it is sent again for receivers that join late
             packet = self.opener.open(data)
-            events = [] if packet is None else self._core.packet(packet)
-        self._core.position += len(data)  # junk too: what pays for frames (protocol/decoder.py)
+            events = [] if packet is None else self._core.packet(packet, self._received)
+        self._received += len(data)
         return events
 
 
@@ -72,7 +73,7 @@ class SecureStreamDecoder(_Secure, ByteStreamDecoder):
         packet = self.opener.open(sealed) if size else None
         if packet is None or not size:
             return self._skip(1, "packet fails authentication"), 1
-        return self._core.packet(packet), 1 + size  # authentic: never resync inside it
+        return self._core.packet(packet, self._base + pos), 1 + size  # authentic: never resync inside it
 
     def _size(self, pos: int, preamble: bool) -> int | None:
         """0 when the bytes at ``pos`` cannot start a preamble (or a sealed packet)."""

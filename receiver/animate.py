@@ -96,9 +96,9 @@ def read_script(path: str) -> tuple[np.ndarray, np.ndarray]:
 
 def _line_params(words: list[str], where: str) -> np.ndarray:
     """Sum of 'name [intensity]' pairs of one text key; a name AU<n> is Action Unit n."""
-    from facedeform.codec.model.deform import EXTENDED_PARAMS
     from facedeform.codec.model.expressions import au_params, expression_params
     from facedeform.common.errors import InputError
+    from facedeform.common.parameters import EXTENDED_PARAMS
 
     if not words:
         raise InputError(f"{where}: a time needs an expression after it")

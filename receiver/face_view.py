@@ -9,7 +9,7 @@ from collections import deque
 
 import numpy as np
 
-from facedeform.codec.model.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, Deformer
+from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import BaseFace, mouth_vertices
 from facedeform.codec.render.camera import Camera
 from facedeform.codec.render.eyelids import Eyelids
@@ -18,6 +18,7 @@ from facedeform.codec.render.mouth_interior import LOWER_LIP, UPPER_LIP
 from facedeform.codec.render.picture import SceneMesh, face_texture, frame_placement, global_matrix
 from facedeform.codec.render.render import UNLIT, Renderer
 from facedeform.common.errors import BitstreamError, InputError
+from facedeform.common.parameters import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, slots
 from facedeform.common.stages import View
 from facedeform.protocol.stream import Header
 
@@ -92,7 +93,7 @@ class FaceView:
         unknown = [n for n in header.names if n not in EXTENDED_PARAMS]
         if unknown or len(set(header.names)) != len(header.names):
             raise BitstreamError(f"unknown parameter layout: {', '.join(header.names)}")
-        self._slots = [EXTENDED_PARAMS.index(n) for n in header.names]
+        self._slots = slots(header.names)
         self._f3_with_jaw = header.f3_with_jaw
         self._deformer = Deformer(face, header.rule)
         self.size = size
@@ -115,8 +116,8 @@ class FaceView:
         return self._renderer.render(vertices, self._camera, irises)[0]
 
 
-_POSE = [EXTENDED_PARAMS.index(n) for n in POSE_PARAMS]
-_GLOBAL = [EXTENDED_PARAMS.index(n) for n in GLOBAL_PARAMS]
+_POSE = slots(POSE_PARAMS)
+_GLOBAL = slots(GLOBAL_PARAMS)
 
 
 class PictureView(FaceView):

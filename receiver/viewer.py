@@ -149,6 +149,9 @@ class _BoundedServer(ThreadingHTTPServer):
     traceback on fd-recv's stderr."""
 
     daemon_threads = True
+    #: Connections the kernel queues for accept: room for a flood, so that the ones past MAX_CLIENTS are
+    #: closed at once instead of waiting out the kernel's retries of a full queue.
+    request_queue_size = 4 * MAX_CLIENTS
 
     def __init__(self, *args, **kwargs) -> None:
         self._slots = threading.BoundedSemaphore(MAX_CLIENTS)

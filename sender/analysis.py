@@ -15,14 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facedeform.codec.model.deform import GLOBAL_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
+from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import BaseFace
 from facedeform.codec.model.head_pose import head_pivot, image_to_face_axes
-from facedeform.codec.model.mouth import MOUTH_PARAMS
 from facedeform.codec.model.regions import DEFAULT_RULE
-from facedeform.codec.model.upper_face import LID_PARAMS, UPPER_PARAMS
 from facedeform.codec.render.picture import VIEW_DISTANCE, Placement, relative_pose
 from facedeform.common.errors import InputError, NoFaceError
+from facedeform.common.parameters import GLOBAL_PARAMS, LAYOUTS, LID_PARAMS, PAPER_PARAMS, POSE_PARAMS
 from facedeform.common.stages import Tracker
 from facedeform.protocol.quantise import VECTOR_STEP, steps_for
 from facedeform.sender.calibrate import RestFace, choose_rest, fapu_ratios
@@ -33,12 +32,7 @@ from facedeform.sender.smoothing import OneEuroFilter
 
 #: Per frame without a face, the parameters keep this fraction of their value: the face relaxes to rest.
 RELAX = 0.8
-LAYOUTS = {
-    "paper": PAPER_PARAMS + POSE_PARAMS[:3],
-    "full": PAPER_PARAMS + UPPER_PARAMS + POSE_PARAMS,
-    "mouth": PAPER_PARAMS + MOUTH_PARAMS + LID_PARAMS + POSE_PARAMS[:3],
-}
-#: Layouts by name: the fixed ones; "personal": the coefficients of the face model's own
+#: Layouts by name: the fixed ones (common/parameters.LAYOUTS); "personal": the coefficients of the face model's own
 #: motion basis (their names depend on the face), after the paper's 13 when the basis refines
 #: them, and head rotation; "auto": the closest the face allows (``resolve_layout``).
 LAYOUT_NAMES = (*LAYOUTS, "personal", "auto")

@@ -4,8 +4,8 @@
 import argparse
 import sys
 
-from facedeform.codec.model.motion_basis import MAX_COMPONENTS
 from facedeform.common.cli import ArgumentParser, check_output, number, run_main
+from facedeform.common.parameters import MAX_COMPONENTS
 from facedeform.sender.enrolment import MOTION_PATTERNS, TEXTURE_SIDES, TEXTURE_SIZE
 from facedeform.sender.motion import FRAMES_PER_PATTERN
 

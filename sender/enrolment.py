@@ -23,8 +23,9 @@ import numpy as np
 from facedeform.codec.face_file.format import Face, decode_face, personal_face
 from facedeform.codec.model.face_model import BaseFace, ReferencePicture, load_base_face, mouth_vertices, normalise
 from facedeform.codec.model.head_pose import image_to_face_axes
-from facedeform.codec.model.motion_basis import MAX_COMPONENTS, OVER
+from facedeform.codec.model.motion_basis import OVER
 from facedeform.common.errors import InputError, NoFaceError
+from facedeform.common.parameters import MAX_COMPONENTS
 from facedeform.sender.calibrate import lip_gap
 from facedeform.sender.motion import learn_motion, residuals
 from facedeform.sender.motion_global import RingWeights

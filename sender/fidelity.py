@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facedeform.codec.model.deform import EXTENDED_PARAMS, POSE_PARAMS, Deformer, extended_params
+from facedeform.codec.model.deform import Deformer, extended_params
+from facedeform.common.parameters import POSE_PARAMS, slots
 from facedeform.sender.calibrate import inter_ocular
 
 _OUTER_LIPS = (61, 146, 91, 181, 84, 17, 314, 405, 321, 375,
@@ -40,7 +41,7 @@ def fidelity(deformer: Deformer, targets: np.ndarray, params: np.ndarray, names,
     subset of EXTENDED_PARAMS; the head pose is ignored); landmarks: the vertex indices compared."""
     base = deformer.face.vertices
     full = extended_params(names, params)
-    full[:, [EXTENDED_PARAMS.index(n) for n in POSE_PARAMS]] = 0.0  # pose-free: compare shapes
+    full[:, slots(POSE_PARAMS)] = 0.0  # pose-free: compare shapes
     idx = np.asarray(landmarks)
     model = np.stack([deformer.deform_extended(p)[idx] for p in full])
     obs = np.asarray(targets, dtype=np.float64)[:, idx]

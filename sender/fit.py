@@ -20,12 +20,12 @@ trigonometric polynomial whose coefficients are two dot products per frame.
 
 import numpy as np
 
-from facedeform.codec.model.deform import EXTENDED_PARAMS, FREE, JAW_FOLLOWING, PAPER_PARAMS, Deformer, extended_params
-from facedeform.codec.model.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
+from facedeform.codec.model.deform import FREE, JAW_FOLLOWING, Deformer, extended_params
+from facedeform.codec.model.mouth import LOWER_LIP_PARAMS
 from facedeform.codec.model.regions import FEATURE_NAMES
-from facedeform.codec.model.upper_face import UPPER_PARAMS
+from facedeform.common.parameters import MOUTH_PARAMS, PAPER_PARAMS, PARAMETERS, UPPER_PARAMS, slots
 
-THETA_RANGE = (-15.0, 45.0)  # degrees: a little closing past rest, a wide yawn
+THETA_RANGE = PARAMETERS["theta"].limits  # degrees: a little closing past rest, a wide yawn
 #: Ridge weight, relative to each unknown's own normal-equation diagonal: keeps poorly
 #: observed components near rest instead of chasing tracker noise.
 RIDGE = 1e-3
@@ -129,7 +129,7 @@ class ModelFit:
         self._lip_scale = float(np.mean(np.sum(b[:, self._lip_columns] ** 2, axis=0)))  # their gram diagonal
         self._refits: dict[float, _ThetaSolver] = {}
         self._names = PAPER_PARAMS + (MOUTH_PARAMS if mouth else ())
-        self._slots = [EXTENDED_PARAMS.index(n) for n in self._names]
+        self._slots = slots(self._names)
 
         up = deformer.upper
         self.upper_landmarks = np.flatnonzero(np.abs(up.weights).sum(axis=1) > 1e-9)

@@ -8,13 +8,12 @@ from pathlib import Path
 import numpy as np
 
 from facedeform.codec.face_file.format import Face
-from facedeform.codec.model.deform import GLOBAL_PARAMS, POSE_PARAMS
 from facedeform.codec.model.face_model import load_base_face
-from facedeform.codec.model.motion_basis import BASIS_PARAMS
 from facedeform.codec.model.regions import DEFAULT_RULE
 from facedeform.common.errors import InputError
 from facedeform.common.limits import MAX_SIDE
 from facedeform.common.npz import NpzAppender
+from facedeform.common.parameters import BASIS_PARAMS, GLOBAL_PARAMS, POSE_PARAMS
 from facedeform.common.stages import Source
 from facedeform.protocol.basis import principal_basis
 from facedeform.protocol.layouts import shipped_basis

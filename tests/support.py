@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from facedeform.codec.face_file.format import _PACKING, PATTERN_SCALE, VERTEX_STEPS, personal_face, save_face_file
-from facedeform.codec.model.deform import PAPER_PARAMS
 from facedeform.codec.model.face_model import ReferencePicture, load_base_face, mouth_vertices
 from facedeform.codec.render.picture import Placement
+from facedeform.common.parameters import PAPER_PARAMS
 from facedeform.protocol.stream import Header, PacketEncoder, StreamDecoder, StreamEncoder, steps_for
 from facedeform.receiver.cli import main
 

@@ -30,7 +30,7 @@ def test_pipe_gives_one_frame_per_input_frame_at_its_rate(tmp_path):
 
 
 def test_sender_dump_has_landmarks_pose_and_params(sent):
-    from facedeform.sender.analysis import LAYOUTS
+    from facedeform.common.parameters import LAYOUTS
 
     _, dump = sent
     n = clip_frames()

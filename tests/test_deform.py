@@ -10,10 +10,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
-from facedeform.codec.model.deform import PAPER_PARAMS, PRESETS, Deformer, extended_params
+from facedeform.codec.model.deform import PRESETS, Deformer, extended_params
 from facedeform.codec.model.face_model import content_id, load_base_face
 from facedeform.codec.model.regions import FEATURE_NAMES, RULES, project_weights, round_lower_lip
 from facedeform.common.errors import InputError
+from facedeform.common.parameters import PAPER_PARAMS
 
 FACE = load_base_face()
 DEF = Deformer(FACE)

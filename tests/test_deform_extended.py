@@ -10,12 +10,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
-from facedeform.codec.model.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, PAPER_PARAMS, Deformer
+from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import load_base_face
-from facedeform.codec.model.motion_basis import BASIS_PARAMS
-from facedeform.codec.model.mouth import MOUTH_PARAMS
 from facedeform.codec.model.regions import project_weights
-from facedeform.codec.model.upper_face import UPPER_PARAMS, gaze_direction
+from facedeform.codec.model.upper_face import gaze_direction
+from facedeform.common.parameters import (
+    BASIS_PARAMS,
+    EXTENDED_PARAMS,
+    GLOBAL_PARAMS,
+    MOUTH_PARAMS,
+    PAPER_PARAMS,
+    UPPER_PARAMS,
+)
 
 FACE = load_base_face()
 DEF = Deformer(FACE)
@@ -180,8 +186,8 @@ def test_bad_params_raise(bad):
 # The richer mouth and jaw (codec/model/mouth.py)
 
 def test_mouth_points_move_by_their_vectors_and_paper_points_stay():
-    from facedeform.codec.model.mouth import MOUTH_POINTS, UPPER_SIDE
-    for point, lm in MOUTH_POINTS.items():
+    from facedeform.codec.model.mouth import MOUTH_LANDMARKS, UPPER_SIDE
+    for point, lm in MOUTH_LANDMARKS.items():
         v = np.array([0.01, 0.02 if point in UPPER_SIDE else -0.02, 0.03])  # lips apart: nothing folds
         p = params(**{f"{point}_{a}": c for a, c in zip("xyz", v)})
         out = DEF.deform_extended(p)
@@ -211,7 +217,7 @@ def test_jaw_shift_moves_the_mandible_rigidly_and_leaves_the_upper_face():
 def test_mouth_tiling_blends_agree_on_shared_edges_and_vanish_on_its_rim():
     """Points on an edge shared by two tiles get the same weights from either; rim edges carry paper
     points only, whose vectors are 0 here, so the mouth term is continuous (the slit aside)."""
-    from facedeform.codec.model.mouth import MOUTH_POINTS
+    from facedeform.codec.model.mouth import MOUTH_LANDMARKS
     tris, o = DEF.mouth.triangles, DEF.regions.origin
     t = np.linspace(0.05, 0.95, 7)[:, None]
     count = {}
@@ -220,7 +226,7 @@ def test_mouth_tiling_blends_agree_on_shared_edges_and_vanish_on_its_rim():
             count.setdefault(e, []).append(k)
     for (a, b), tiles in count.items():
         if len(tiles) == 1:
-            assert not {a, b} & set(MOUTH_POINTS.values())
+            assert not {a, b} & set(MOUTH_LANDMARKS.values())
             continue
         pts = X[a] + t * (X[b] - X[a])
         w = [dict(zip(tris[k], project_weights(pts, X[tris[k]], o).T)) for k in tiles]

@@ -10,12 +10,12 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial.transform import Rotation
 
-from facedeform.codec.model.deform import EXTENDED_PARAMS, PAPER_PARAMS, PRESETS, Deformer, extended_params
+from facedeform.codec.model.deform import PRESETS, Deformer, extended_params
 from facedeform.codec.model.face_model import load_base_face
-from facedeform.codec.model.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS
+from facedeform.codec.model.mouth import LOWER_LIP_PARAMS
 from facedeform.codec.model.regions import RULES
 from facedeform.common.errors import InputError
-from facedeform.sender.analysis import LAYOUTS
+from facedeform.common.parameters import LAYOUTS, MOUTH_PARAMS, PAPER_PARAMS, slots
 
 FACE = load_base_face()
 X = FACE.vertices
@@ -159,7 +159,7 @@ def senders_params(rng: np.random.Generator, f3_with_jaw: bool) -> np.ndarray:
     if not f3_with_jaw:
         paper[4:7] += jaw_carry(paper[0])
     full = extended_params(PAPER_PARAMS, paper)
-    full[[EXTENDED_PARAMS.index(n) for n in MOUTH_PARAMS]] = rng.uniform(MOUTH_LOW, MOUTH_HIGH)
+    full[slots(MOUTH_PARAMS)] = rng.uniform(MOUTH_LOW, MOUTH_HIGH)
     return full
 
 
@@ -182,7 +182,7 @@ def test_the_fold_guard_changes_only_what_would_fold():
     keeps them so, when holding the lip at the carry is enough."""
     d = DEFS["refined"]
     rng = np.random.default_rng(10)
-    lower_lip = [EXTENDED_PARAMS.index(n) for n in LOWER_LIP_PARAMS]
+    lower_lip = slots(LOWER_LIP_PARAMS)
     guarded = 0
     for _ in range(60):
         params = senders_params(rng, False)

@@ -6,8 +6,9 @@ import csv
 import functools
 import json
 import math
+import multiprocessing
 import shutil
-import time
+from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 import pytest
@@ -205,18 +206,28 @@ def test_resuming_with_another_clip_length_is_refused(results, capsys):
     assert "made with --seconds 2.0, not 3.0: use another --out" in err and err.count("\n") == 1
 
 
-def _slow_or_failing(folder, task: int) -> int:
+def _held_or_failing(folder, release, task: int) -> int:
     if task == 0:
         raise FdError("run 0 failed")
     (folder / str(task)).touch()  # this run started
-    time.sleep(0.2)
+    release.wait()  # until the pool has cancelled the runs it had not handed out
     return task
 
 
-def test_a_failed_run_ends_the_local_pool_at_once(tmp_path):
-    with pytest.raises(FdError, match="^run 0 failed$"):
-        list(cli._map(functools.partial(_slow_or_failing, tmp_path), list(range(40)),
-                      argparse.Namespace(scheduler=None, jobs=2)))
+def test_a_failed_run_ends_the_local_pool_at_once(tmp_path, monkeypatch):
+    shutdown = ProcessPoolExecutor.shutdown
+    with multiprocessing.Manager() as manager:
+        release = manager.Event()
+
+        def cancel_then_release(self, wait=True, *, cancel_futures=False):
+            shutdown(self, wait=False, cancel_futures=cancel_futures)
+            release.set()
+            shutdown(self, wait=wait)
+
+        monkeypatch.setattr(ProcessPoolExecutor, "shutdown", cancel_then_release)
+        with pytest.raises(FdError, match="^run 0 failed$"):
+            list(cli._map(functools.partial(_held_or_failing, tmp_path, release), list(range(40)),
+                          argparse.Namespace(scheduler=None, jobs=2)))
     assert len(list(tmp_path.iterdir())) <= 8  # the runs already handed to the 2 workers, not the other 39
 
 

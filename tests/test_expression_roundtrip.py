@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 import facedeform
-from facedeform.codec.model.deform import EXTENDED_PARAMS, Deformer
+from facedeform.codec.model.deform import Deformer
+from facedeform.common.parameters import EXTENDED_PARAMS
 from facedeform.experiment.clips import track
 from facedeform.receiver.face_view import PictureView
 from facedeform.sender.calibrate import LOWER_LIP, UPPER_LIP, eye_opening, lip_gap

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from facedeform.codec.model.deform import EXTENDED_PARAMS, Deformer
+from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.expressions import (
     AU_FILE,
     EXPRESSION_FILE,
@@ -19,6 +19,7 @@ from facedeform.codec.model.expressions import (
 )
 from facedeform.codec.model.face_model import load_base_face
 from facedeform.common.errors import InputError
+from facedeform.common.parameters import EXTENDED_PARAMS
 from facedeform.receiver.animate import interpolate, main
 
 FACE = load_base_face()

@@ -4,10 +4,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from facedeform.codec.model.deform import EXTENDED_PARAMS, Deformer
+from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import load_base_face
 from facedeform.codec.render.eyelids import Eyelids
 from facedeform.codec.render.picture import SceneMesh
+from facedeform.common.parameters import EXTENDED_PARAMS
 from facedeform.receiver.face_view import PictureView
 from facedeform.sender.fit import LID_GAIN, ModelFit
 from facedeform.sender.session import stream_header

@@ -17,9 +17,10 @@ from facedeform.codec.face_file.format import (
     personal_face,
     save_face_file,
 )
-from facedeform.codec.model.deform import PAPER_PARAMS, Deformer
+from facedeform.codec.model.deform import Deformer
 from facedeform.codec.render.picture import Placement
 from facedeform.common.errors import InputError
+from facedeform.common.parameters import PAPER_PARAMS
 from tests.support import BASE, a_person, a_picture, a_picture_with_a_mouth, as_version, with_info
 
 GENERIC_ID = "29d964b2735ca5b817cf688586b0cdcbe7dae01b01573aa45c8ce855b3d3a966"

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from facedeform.codec.model.deform import PAPER_PARAMS
 from facedeform.codec.model.face_model import load_base_face
 from facedeform.common.errors import BitstreamError
+from facedeform.common.parameters import PAPER_PARAMS
 from facedeform.protocol.stream import Header, steps_for
 from facedeform.receiver.face_view import FaceView
 
@@ -14,7 +14,8 @@ SIZE = (96, 96)
 
 
 def view(names, face_id=FACE.content_id):
-    return FaceView(Header(25.0, names, steps_for(names), face_id), FACE, SIZE)
+    """A view of a header as a stream may carry it: its steps written out, whatever the names."""
+    return FaceView(Header(25.0, names, np.full(len(names), 0.01), face_id), FACE, SIZE)
 
 
 def test_rest_parameters_render_the_face_in_the_middle():

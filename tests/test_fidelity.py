@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from facedeform.codec.model.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
+from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import load_base_face
+from facedeform.common.parameters import EXTENDED_PARAMS, PAPER_PARAMS
 from facedeform.sender.calibrate import inter_ocular
 from facedeform.sender.fidelity import MOUTH_JAW_LANDMARKS, fidelity
 

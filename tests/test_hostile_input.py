@@ -7,7 +7,6 @@ import struct
 import subprocess
 import sys
 import threading
-import time
 import tracemalloc
 import zlib
 from dataclasses import replace
@@ -20,6 +19,7 @@ from facedeform.codec.face_file.format import decode_face, encode_face, personal
 from facedeform.codec.face_file.image_header import image_size
 from facedeform.common.errors import BitstreamError, InputError
 from facedeform.common.limits import MAX_SIDE
+from facedeform.protocol.framing import varint
 from facedeform.protocol.header import encode_header, parse_header
 from facedeform.protocol.stream import StreamEncoder
 from facedeform.receiver.transport import HeaderStore
@@ -117,7 +117,11 @@ def test_a_bomb_in_band_is_one_line(tmp_path):
 def test_a_frame_size_beyond_the_limit_is_refused_where_the_header_is_parsed():
     body = encode_header(replace(header(), width=MAX_SIDE, height=MAX_SIDE))
     assert parse_header(body).width == MAX_SIDE
-    with pytest.raises(BitstreamError, match="out of range"):
+    side = varint(MAX_SIDE)
+    assert len(varint(MAX_SIDE + 1)) == len(side) and body.count(side) == 2
+    with pytest.raises(BitstreamError):
+        parse_header(body.replace(side, varint(MAX_SIDE + 1), 1))
+    with pytest.raises(ValueError, match="out of range"):  # a caller's mistake, not a stream's
         replace(header(), width=MAX_SIDE + 1)
 
 
@@ -207,8 +211,9 @@ def test_the_viewer_serves_a_bounded_number_of_clients():
     port = int(viewer.url.rstrip("/").rsplit(":", 1)[1])
     try:
         before = threading.active_count()
-        idle = [socket.create_connection(("127.0.0.1", port)) for _ in range(4 * MAX_CLIENTS)]
-        time.sleep(0.5)
+        idle = [socket.create_connection(("127.0.0.1", port), timeout=60) for _ in range(4 * MAX_CLIENTS)]
+        for s in idle[MAX_CLIENTS:]:  # accepted in order: all slots are held, so the server closes these at once
+            assert s.recv(1) == b""
         assert threading.active_count() - before <= MAX_CLIENTS
         for s in idle:
             s.close()

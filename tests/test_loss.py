@@ -206,7 +206,7 @@ def test_over_udp_five_percent_loss_keeps_95_percent_good(tmp_path):
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         for d in random_loss(stream, 0.05, 11):
             sock.sendto(d, ("127.0.0.1", port))
-            time.sleep(0.002)
+            time.sleep(0.002)  # a sender's pace: a burst could overflow the receiver's socket, which is not the loss
     stats, _ = finish(proc)
     dump = np.load(tmp_path / "recv.npz")
     np.testing.assert_array_equal(dump["seq"], np.arange(N))
@@ -218,19 +218,20 @@ def test_a_receiver_started_after_the_sender_renders_from_the_next_keyframe(tmp_
     """The sender is already sending at the stream's rate when fd-recv starts listening."""
     stream, _ = datagrams(smooth_tracks(), header_every=1)
     port = free_udp_port()
-    listening = threading.Event()
+    sent_into_nothing, listening = threading.Event(), threading.Event()
 
     def send():
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
             for i, d in enumerate(stream):
                 if i == len(stream) // 3:
+                    sent_into_nothing.set()
                     listening.wait(60)
                 sock.sendto(d, ("127.0.0.1", port))
-                time.sleep(2 / 25)
+                time.sleep(2 / 25)  # a live sender's pace, so that the receiver's socket never overflows
 
     sender = threading.Thread(target=send)
     sender.start()
-    time.sleep(0.5)  # the sender has sent its header and a few packets into nothing
+    assert sent_into_nothing.wait(60)  # the header and the first third went to nobody
     proc, _ = start_listener(f"udp://127.0.0.1:{port}", tmp_path)
     listening.set()
     stats, _ = finish(proc)
@@ -246,10 +247,20 @@ def test_a_tcp_sender_waits_for_the_receiver(monkeypatch):
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:  # a free port, bound a moment later
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
-    got = []
+    got, refused = [], threading.Event()
+    connect = socket.create_connection
+
+    def connect_noting_refusals(*args, **kwargs):
+        try:
+            return connect(*args, **kwargs)
+        except ConnectionRefusedError:
+            refused.set()
+            raise
+
+    monkeypatch.setattr("facedeform.sender.transport.socket.create_connection", connect_noting_refusals)
 
     def listen_later():
-        time.sleep(0.5)
+        assert refused.wait(60)  # the sender has tried once while nobody listened
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as server:
             server.bind(("127.0.0.1", port))
             server.listen(1)

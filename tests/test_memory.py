@@ -2,7 +2,6 @@
 and its --dump goes to disk as the frames pass; and the looped and paced sources that long and
 live calls are measured with (benchmarks/bench_memory.py, bench_latency.py, fd-send --realtime)."""
 
-import time
 import tracemalloc
 from pathlib import Path
 
@@ -125,12 +124,44 @@ def test_a_looped_clip_runs_as_long_as_asked_across_its_ends():
     np.testing.assert_array_equal(frames[-1], once[4])
 
 
-def test_a_paced_source_hands_frames_over_no_faster_than_its_rate():
+class Clock:
+    """A clock that moves only when slept on (or when a test moves it)."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        assert seconds > 0
+        self.now += seconds
+
+
+def test_a_paced_source_hands_frames_over_no_faster_than_its_rate(monkeypatch):
+    clock = Clock()
+    monkeypatch.setattr("facedeform.sender.sources.time", clock)
     source = LandmarkSource(11)
     source.fps = 200.0
-    started = time.monotonic()
-    frames = list(PacedSource(source).frames())
-    assert len(frames) == 11 and time.monotonic() - started >= 10 / 200.0
+    handed = [clock.now for _ in PacedSource(source).frames()]
+    np.testing.assert_allclose(np.diff(handed), 1 / 200.0)
+
+
+def test_a_paced_source_hands_a_frame_that_was_slow_to_read_at_once(monkeypatch):
+    clock, source = Clock(), LandmarkSource(5)
+    source.fps = 10.0
+    inner = source.frames
+
+    def slow_third():
+        for i, frame in enumerate(inner()):
+            clock.now += 0.35 if i == 2 else 0.0  # the third frame is read 0.25 s after it was due
+            yield frame
+
+    monkeypatch.setattr(source, "frames", slow_third)
+    monkeypatch.setattr("facedeform.sender.sources.time", clock)
+    handed = [clock.now for _ in PacedSource(source).frames()]
+    late = [0.0, 0.1, 0.45, 0.45, 0.45]  # the frames after a late one come at once until they are due again
+    np.testing.assert_allclose(np.array(handed) - handed[0], late)
 
 
 class NullSink:

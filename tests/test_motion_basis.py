@@ -10,11 +10,20 @@ import numpy as np
 import pytest
 
 from facedeform.codec.face_file.format import _PACKING, Face, decode_face, encode_face
-from facedeform.codec.model.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, PAPER_PARAMS, POSE_PARAMS, Deformer
+from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import load_base_face
-from facedeform.codec.model.motion_basis import BASIS_PARAMS, MAX_COMPONENTS, MotionBasis, learn_basis
-from facedeform.codec.model.upper_face import LID_PARAMS
+from facedeform.codec.model.motion_basis import MotionBasis, learn_basis
 from facedeform.common.errors import InputError
+from facedeform.common.parameters import (
+    BASIS_PARAMS,
+    EXTENDED_PARAMS,
+    GLOBAL_PARAMS,
+    LID_PARAMS,
+    MAX_COMPONENTS,
+    PAPER_PARAMS,
+    POSE_PARAMS,
+    slots,
+)
 from facedeform.protocol.quantise import DEAD_ZONE
 from facedeform.sender.fit import ModelFit
 from facedeform.sender.motion import FRAMES_PER_PATTERN, learn_motion
@@ -119,7 +128,7 @@ def test_the_fit_recovers_coefficients_of_what_the_paper_model_leaves_over():
     coeffs = np.array([0.03, -0.02, 0.01, 0.005])
     params = np.zeros(len(EXTENDED_PARAMS))
     params[:len(PAPER_PARAMS)] = paper
-    params[[EXTENDED_PARAMS.index(n) for n in face.motion.names]] = coeffs
+    params[slots(face.motion.names)] = coeffs
     targets = Deformer(face).blend(params)  # a basis learned from noise folds the skin: before the guard
     got_paper = fit.paper(targets)
     got = fit.motion(targets, got_paper)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from facedeform.codec.face_file.format import Face, decode_face, encode_face, save_face_file
-from facedeform.codec.model.deform import EXTENDED_PARAMS, GLOBAL_PARAMS, Deformer
+from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import ReferencePicture, load_base_face, mouth_vertices
 from facedeform.codec.model.head_pose import head_pivot
 from facedeform.codec.render.camera import Camera
@@ -24,6 +24,7 @@ from facedeform.codec.render.picture import (
 )
 from facedeform.codec.render.render import Renderer
 from facedeform.common.errors import InputError
+from facedeform.common.parameters import EXTENDED_PARAMS, GLOBAL_PARAMS, slots
 from facedeform.protocol.stream import Header, steps_for
 from facedeform.receiver.face_view import FaceView, PictureView, default_look, open_view
 from facedeform.sender.motion_global import GlobalMotion, RingWeights
@@ -354,7 +355,7 @@ def test_global_motion_and_its_pixel_map_are_inverse_and_zero_is_none():
     assert global_matrix(np.zeros(4), reference, (200, 160)) is None
     # the face ignores them: the receiver moves the picture
     deformer, full = Deformer(BASE), np.zeros(len(EXTENDED_PARAMS))
-    full[[EXTENDED_PARAMS.index(n) for n in GLOBAL_PARAMS]] = motion
+    full[slots(GLOBAL_PARAMS)] = motion
     np.testing.assert_array_equal(deformer.deform_extended(full), deformer.deform_extended(np.zeros(len(full))))
 
 

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from facedeform.codec.model.face_model import load_base_face
+from facedeform.common.parameters import LAYOUTS
 from facedeform.protocol import priors
 from facedeform.protocol.entropy import GroupState
 from facedeform.protocol.quantise import QUALITIES
 from facedeform.protocol.stream import Frame, Header, StreamDecoder, StreamEncoder, steps_for
 from facedeform.receiver import cli as receiver_cli
-from facedeform.sender.analysis import LAYOUTS
 from tests.support import ROOT
 
 NAMES = ("theta", "v2x", "v2y", "v2z", "v3x", "v3y", "v3z", "v8x", "v8y", "v8z", "v9x", "v9y", "v9z")

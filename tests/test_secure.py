@@ -7,10 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from facedeform.codec.model.deform import PAPER_PARAMS, POSE_PARAMS
-from facedeform.codec.model.upper_face import UPPER_PARAMS
 from facedeform.common.errors import BitstreamError, FdError, InputError
 from facedeform.common.keys import key_id, parse_key
+from facedeform.common.parameters import PAPER_PARAMS, POSE_PARAMS, UPPER_PARAMS
 from facedeform.protocol.decoder import PacketDecoder
 from facedeform.protocol.framing import varint
 from facedeform.protocol.secure import SecureOpener, SecureSealer, preamble_size
@@ -198,7 +197,8 @@ def test_every_flipped_bit_is_refused_before_the_decoder_sees_the_packet(monkeyp
     starts = np.cumsum([0] + [1 + len(s) for s in sealed])  # each sealed packet's sync byte
     seen: list[bytes] = []
     inner = PacketDecoder.packet
-    monkeypatch.setattr(PacketDecoder, "packet", lambda self, data: seen.append(bytes(data)) or inner(self, data))
+    monkeypatch.setattr(PacketDecoder, "packet",
+                        lambda self, data, at: seen.append(bytes(data)) or inner(self, data, at))
     for bit in range(8 * starts[1], 8 * len(data)):
         bad = bytearray(data)
         bad[bit // 8] ^= 1 << bit % 8

@@ -3,15 +3,14 @@
 import numpy as np
 import pytest
 
-from facedeform.codec.model.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer, extended_params
+from facedeform.codec.model.deform import Deformer, extended_params
 from facedeform.codec.model.face_model import load_base_face
-from facedeform.codec.model.mouth import MOUTH_PARAMS
-from facedeform.codec.model.upper_face import UPPER_PARAMS
+from facedeform.common.parameters import EXTENDED_PARAMS, MOUTH_PARAMS, PAPER_PARAMS, UPPER_PARAMS, slots
 from facedeform.sender.fidelity import fidelity
 from facedeform.sender.fit import ModelFit
 
 UPPER = slice(len(PAPER_PARAMS), len(PAPER_PARAMS) + len(UPPER_PARAMS))
-MOUTH = [EXTENDED_PARAMS.index(n) for n in MOUTH_PARAMS]
+MOUTH = slots(MOUTH_PARAMS)
 #: About the largest brow, lid and cheek values fd-send --params full produced on the dev clips.
 UPPER_SPAN = np.array([0.03, 0.03, 0.03, 0.03, 0.5, 0.5, 0.03, 0.03])
 

@@ -9,9 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
-from facedeform.codec.model.deform import EXTENDED_PARAMS, PAPER_PARAMS, Deformer
+from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import load_base_face
 from facedeform.codec.render.render import Renderer
+from facedeform.common.parameters import EXTENDED_PARAMS, PAPER_PARAMS
 from facedeform.receiver.face_view import portrait_camera
 from facedeform.sender.analysis import FaceAnalyser, Smoothing
 from facedeform.sender.texture import texture_from_frame

@@ -14,6 +14,7 @@ import socket
 import subprocess
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -63,8 +64,9 @@ def get(url: str, path: str) -> tuple[int, str, bytes]:
         conn.close()
 
 
-def first_jpeg(url: str) -> np.ndarray:
-    """The first frame of /stream.mjpg, decoded to (H, W, 3) RGB."""
+def jpegs(url: str) -> Iterator[np.ndarray]:
+    """The frames of /stream.mjpg as the viewer sends them (each as soon as it is drawn), decoded
+    to (H, W, 3) RGB."""
     host, port = url.removeprefix("http://").rstrip("/").rsplit(":", 1)
     conn = http.client.HTTPConnection(host, int(port), timeout=DEADLINE)
     try:
@@ -72,12 +74,19 @@ def first_jpeg(url: str) -> np.ndarray:
         response = conn.getresponse()
         assert response.getheader("Content-Type") == f"multipart/x-mixed-replace; boundary={BOUNDARY}"
         assert response.readline() == f"--{BOUNDARY}\r\n".encode()
-        fields = dict(line.decode().strip().split(": ", 1) for line in iter(response.readline, b"\r\n"))
-        assert fields["Content-Type"] == "image/jpeg"
-        data = response.read(int(fields["Content-Length"]))
+        while True:
+            fields = dict(line.decode().strip().split(": ", 1) for line in iter(response.readline, b"\r\n"))
+            assert fields["Content-Type"] == "image/jpeg"
+            data = response.read(int(fields["Content-Length"]))
+            assert response.readline() == b"\r\n" and response.readline() == f"--{BOUNDARY}\r\n".encode()
+            yield cv2.cvtColor(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
     finally:
         conn.close()
-    return cv2.cvtColor(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+def first_jpeg(url: str) -> np.ndarray:
+    """The first frame of /stream.mjpg: the latest drawn, or the first once one is."""
+    return next(jpegs(url))
 
 
 def test_the_latest_frame_and_the_stats_are_served():
@@ -118,10 +127,7 @@ def live_call():
         url, port = watch.rsplit(" ", 1)[1], int(listen.rsplit(":", 1)[1])
         sender = threading.Thread(target=send_in_real_time, args=(port,))
         sender.start()
-        deadline = time.monotonic() + DEADLINE
-        while json.loads(get(url, "/stats.json")[2]).get("frames", 0) == 0:
-            assert time.monotonic() < deadline, "no frame rendered"
-            time.sleep(0.05)
+        first_jpeg(url)  # waits for the first frame drawn
         yield url
         sender.join()
         _, err = proc.communicate(timeout=DEADLINE)
@@ -148,10 +154,9 @@ def send_in_real_time(port: int) -> None:
 @pytest.mark.slow
 def test_fd_recv_serves_the_call_while_it_lasts():
     with live_call() as url:
-        deadline = time.monotonic() + DEADLINE
-        while (stats := json.loads(get(url, "/stats.json")[2]))["frames"] < 25:  # a second of the call
-            assert time.monotonic() < deadline, "the call stalled"
-            time.sleep(0.05)
+        for _ in jpegs(url):  # each frame as it is drawn, until a second of the call is
+            if (stats := json.loads(get(url, "/stats.json")[2]))["frames"] >= 25:
+                break
         assert stats["concealed"] == 0 and stats["damage_reports"] == 0
         assert 0 < stats["kbit_per_s"] < 100
         frame = first_jpeg(url)
@@ -200,7 +205,10 @@ def test_a_file_stream_stays_served_after_it_ends_until_interrupted(tmp_path):
     assert sender.returncode == 0
     proc = subprocess.Popen(RECV + [str(stream), "--serve", "127.0.0.1:0", "-o", str(tmp_path / "o.y4m"),
                                     "--size", "64"], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=ROOT,
-                            bufsize=0)  # unbuffered: select() sees every line that has not been read
+                            bufsize=0,  # unbuffered: select() sees every line that has not been read
+                            # Ctrl-C as a terminal gives it, even where the tests run in the background (which
+                            # ignores SIGINT, and Python then never turns it into KeyboardInterrupt)
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         url = proc.stderr.readline().decode().strip().rsplit(" ", 1)[1]
         with selectors.DefaultSelector() as sel:  # the stream's end: its summary, then a line saying it is served

@@ -78,11 +78,12 @@ from facedeform.codec.model.face_model import (
     mouth_vertices,
     normalise,
 )
-from facedeform.codec.model.motion_basis import MAX_COMPONENTS, OVER, MotionBasis
+from facedeform.codec.model.motion_basis import OVER, MotionBasis
 from facedeform.codec.render.picture import RINGS, Placement, outer_loop
 from facedeform.common.errors import InputError
 from facedeform.common.keys import derive
 from facedeform.common.limits import MAX_SIDE
+from facedeform.common.parameters import MAX_COMPONENTS
 
 MAGIC = b"FDFACE"
 VERSION = 7

@@ -34,37 +34,34 @@ import numpy as np
 from facedeform.codec.model.face_model import BaseFace
 from facedeform.codec.model.folds import Facing
 from facedeform.codec.model.head_pose import head_pivot, rotation_from_vector, rotation_matrix
-from facedeform.codec.model.motion_basis import BASIS_PARAMS, MAX_COMPONENTS
-from facedeform.codec.model.mouth import LOWER_LIP_PARAMS, MOUTH_PARAMS, MouthModel, build_mouth
+from facedeform.codec.model.mouth import LOWER_LIP_PARAMS, MouthModel, build_mouth
 from facedeform.codec.model.regions import DEFAULT_RULE, FEATURE_NAMES, RegionMap, build_region_map, feature_positions
-from facedeform.codec.model.upper_face import GAZE_PARAMS, UPPER_PARAMS, EyeModel, UpperFace, build_upper_face
+from facedeform.codec.model.upper_face import EyeModel, UpperFace, build_upper_face
+from facedeform.common.parameters import (
+    BASIS_PARAMS,
+    EXTENDED_PARAMS,
+    GAZE_PARAMS,
+    MAX_COMPONENTS,
+    MOUTH_PARAMS,
+    PAPER_PARAMS,
+    POSE_PARAMS,
+    ROTATION_PARAMS,
+    UPPER_PARAMS,
+    slots,
+    span,
+)
 
-PAPER_PARAMS: tuple[str, ...] = (
-    "theta", "v2x", "v2y", "v2z", "v3x", "v3y", "v3z",
-    "v8x", "v8y", "v8z", "v9x", "v9y", "v9z",
-)  # fmt: skip
 FREE = ("F2", "F3", "F8", "F9")  # sent, in PAPER_PARAMS order
 JAW_FOLLOWING = ("F4", "F14", "F15")
-POSE_PARAMS = ("rx", "ry", "rz", "tx", "ty", "tz")  # rotation vector (degrees), translation (base-face units)
-#: The whole frame's motion against the reference picture (codec/picture.global_matrix): shift x, y
-#: (face heights), zoom - 1, roll (degrees). The receiver moves the picture by them; the face ignores them.
-GLOBAL_PARAMS = ("gx", "gy", "gs", "gr")
-#: Newer names come last so that the older layouts keep their slots.
-EXTENDED_PARAMS: tuple[str, ...] = (PAPER_PARAMS + UPPER_PARAMS + GAZE_PARAMS + POSE_PARAMS + MOUTH_PARAMS
-                                    + BASIS_PARAMS + GLOBAL_PARAMS)
 #: The refined rule's fold guard (module docstring) keeps this part of every skin triangle's rest area
 #: facing its own way, so that none is drawn edge-on either; the mouth's and eyes' fills may close.
 KEEP_FACING = 0.05
 #: Bisection steps of the guard: what it keeps of the motion is within 2^-12 of the most that folds nothing.
 FOLD_STEPS = 12
-_UPPER = slice(len(PAPER_PARAMS), len(PAPER_PARAMS) + len(UPPER_PARAMS))
-_GAZE = slice(_UPPER.stop, _UPPER.stop + len(GAZE_PARAMS))
-_ROT = slice(_GAZE.stop, _GAZE.stop + 3)
-_SHIFT = slice(_ROT.stop, _ROT.stop + 3)
-_MOUTH = slice(_SHIFT.stop, _SHIFT.stop + len(MOUTH_PARAMS))
-_BASIS = slice(_MOUTH.stop, _MOUTH.stop + MAX_COMPONENTS)
+_UPPER, _GAZE, _MOUTH, _BASIS = (span(g) for g in (UPPER_PARAMS, GAZE_PARAMS, MOUTH_PARAMS, BASIS_PARAMS))
+_ROT, _SHIFT = span(ROTATION_PARAMS), span(POSE_PARAMS[3:])
 #: The slots that shape the lower face, which the fold guard scales: the paper's, the mouth's, the motion basis.
-_LOWER = np.r_[0 : len(PAPER_PARAMS), _MOUTH.start : _BASIS.stop]
+_LOWER = np.r_[span(PAPER_PARAMS), _MOUTH, _BASIS]
 
 
 def extended_params(names, params: np.ndarray) -> np.ndarray:
@@ -72,7 +69,7 @@ def extended_params(names, params: np.ndarray) -> np.ndarray:
     EXTENDED_PARAMS slots, zero elsewhere (the form :meth:`Deformer.deform_extended` takes)."""
     params = np.asarray(params, dtype=np.float64)
     full = np.zeros(params.shape[:-1] + (len(EXTENDED_PARAMS),))
-    full[..., [EXTENDED_PARAMS.index(n) for n in names]] = params
+    full[..., slots(names)] = params
     return full
 
 

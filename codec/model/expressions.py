@@ -18,12 +18,12 @@ from pathlib import Path
 import numpy as np
 
 from facedeform.codec.data import data_path
-from facedeform.codec.model.deform import EXTENDED_PARAMS
 from facedeform.common.errors import InputError
+from facedeform.common.parameters import EXTENDED_PARAMS, LID_PARAMS, PARAMETERS, slots
 
 AU_FILE = data_path("au_table.json")
 EXPRESSION_FILE = data_path("expressions.json")
-LIDS = [EXTENDED_PARAMS.index("lid_l"), EXTENDED_PARAMS.index("lid_r")]
+LIDS = slots(LID_PARAMS)
 
 INTENSITY = (0.0, 2.0)  # the range of an expression's or AU's intensity
 
@@ -84,7 +84,7 @@ def load_tables(au_path: str | Path = AU_FILE, expression_path: str | Path = EXP
         for name, value in entry["params"].items():
             if name not in EXTENDED_PARAMS:
                 raise InputError(f"{au_path}: AU {key} has unknown parameter {name!r}")
-            vec[EXTENDED_PARAMS.index(name)] = _number(value, f"{au_path}: AU {key} {name}")
+            vec[PARAMETERS[name].slot] = _number(value, f"{au_path}: AU {key} {name}")
         aus[au] = (str(entry.get("name", f"AU{au}")), vec)
 
     data = _read(expression_path)
@@ -122,7 +122,7 @@ def au_params(intensities: Mapping[int | str, float], tables: Tables | None = No
         if au not in t.aus:
             raise InputError(f"unknown AU {au} (known: {', '.join(str(a) for a in sorted(t.aus))})")
         out += _intensity(value, f"AU {au}") * t.aus[au][1]
-    out[LIDS] = np.minimum(out[LIDS], 1.0)
+    out[LIDS] = np.minimum(out[LIDS], [PARAMETERS[n].limits[1] for n in LID_PARAMS])
     return out
 
 

@@ -21,10 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from facedeform.common.errors import InputError
+from facedeform.common.parameters import BASIS_PARAMS, MAX_COMPONENTS
 
-MAX_COMPONENTS = 16
 OVER = ("rest", "paper")  # what the patterns are displacements from
-BASIS_PARAMS: tuple[str, ...] = tuple(f"basis_{i}" for i in range(MAX_COMPONENTS))
 
 
 @dataclass(frozen=True)

@@ -28,13 +28,13 @@ from scipy.spatial import Delaunay
 
 from facedeform.codec.model.face_model import BaseFace
 from facedeform.codec.model.regions import COVER_TOL, FEATURE_NAMES, RegionMap, project_weights
+from facedeform.common.parameters import MOUTH_PARAMS, MOUTH_POINTS
 
-#: New free points: name -> landmark. "l"/"r": face-left (+x) / face-right; "u"/"l" upper / lower lip.
-MOUTH_POINTS = {"lip_ul": 311, "lip_ur": 81, "lip_ll": 402, "lip_lr": 178, "lip_uo": 0, "lip_lo": 17}
+#: The new free points' landmarks, in the registry's order (common/parameters.MOUTH_POINTS names them).
+MOUTH_LANDMARKS = dict(zip(MOUTH_POINTS, (311, 81, 402, 178, 0, 17), strict=True))
 UPPER_SIDE = ("F2", "lip_ul", "lip_ur", "lip_uo")
 LOWER_SIDE = ("F3", "lip_ll", "lip_lr", "lip_lo")
 TILING_POINTS = ("F1", "F2", "F3", "F4", "F5", "F6", "F8", "F9", "F10", "F11", "F12", "F13", "F14", "F15")
-MOUTH_PARAMS: tuple[str, ...] = tuple(f"{p}_{a}" for p in MOUTH_POINTS for a in "xyz") + ("jaw_x", "jaw_y", "jaw_z")
 #: The lower lip's new points' parameters, which the refined rule's fold guard holds back first.
 LOWER_LIP_PARAMS: tuple[str, ...] = tuple(f"{p}_{a}" for p in LOWER_SIDE[1:] for a in "xyz")
 
@@ -53,7 +53,7 @@ class MouthModel:
 
 def _tiling(face: BaseFace, origin: np.ndarray) -> np.ndarray:
     """(r, 3) landmark triangles: Delaunay of the paper's lower points and the new ones as seen from O."""
-    lm = [face.feature_points[n] for n in TILING_POINTS] + list(MOUTH_POINTS.values())
+    lm = [face.feature_points[n] for n in TILING_POINTS] + list(MOUTH_LANDMARKS.values())
     rays = face.vertices[lm] - origin
     seen = rays[:, :2] / rays[:, 2:]  # central projection onto a plane z = const
     return np.asarray(lm)[Delaunay(seen).simplices]
@@ -69,7 +69,7 @@ def build_mouth(face: BaseFace, paper: RegionMap) -> MouthModel:
     min_w = np.nan_to_num(all_w.min(axis=2), nan=-np.inf)
     loops = face.meta["loops"]
     upper, lower = set(loops["inner_lip_upper"]), set(loops["inner_lip_lower"])
-    lm = {**face.feature_points, **MOUTH_POINTS}
+    lm = {**face.feature_points, **MOUTH_LANDMARKS}
     for lip, other in ((upper - lower, LOWER_SIDE), (lower - upper, UPPER_SIDE)):
         bad = np.isin(triangles, [lm[n] for n in other]).any(axis=1)
         min_w[np.ix_(bad, np.isin(idx, sorted(lip)))] = -np.inf
@@ -80,7 +80,7 @@ def build_mouth(face: BaseFace, paper: RegionMap) -> MouthModel:
     w = np.clip(all_w[best, np.flatnonzero(keep)], 0.0, None)
     w /= w.sum(axis=1, keepdims=True)
 
-    col = {v: i for i, v in enumerate(MOUTH_POINTS.values())}
+    col = {v: i for i, v in enumerate(MOUTH_LANDMARKS.values())}
     weights = np.zeros((len(x), len(col)))
     for corner in range(3):
         lms = triangles[best, corner]

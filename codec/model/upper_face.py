@@ -22,13 +22,8 @@ import numpy as np
 
 from facedeform.codec.model.face_model import BaseFace
 from facedeform.codec.model.regions import RegionMap, project_weights
+from facedeform.common.parameters import UPPER_PARAMS
 
-UPPER_PARAMS: tuple[str, ...] = (
-    "brow_l_y", "brow_r_y", "brow_inner", "brow_knit", "lid_l", "lid_r", "cheek_l", "cheek_r",
-)  # fmt: skip
-GAZE_PARAMS = ("gaze_yaw", "gaze_pitch")
-#: The lids alone, which the default layouts carry beside the mouth (a blink the face's own basis may not know).
-LID_PARAMS = ("lid_l", "lid_r")
 BROW_INNER = {"inner": 1.0, "mid": 0.4, "outer": 0.0}  # share of brow_inner (up) and brow_knit (medial)
 GLABELLA_SHARE = 0.25  # the glabella rises by this share of each brow's raise and of brow_inner
 CHEEK_DIRECTION = (0.0, 1.0, 0.25)  # AU6 lifts the cheek and pushes it slightly forward
