@@ -2,8 +2,8 @@
 
 frames -> landmarks -> parameters -> bits -> parameters -> pixels: a
 :class:`Source` gives frames, a :class:`Tracker` their landmarks, the
-estimator (``sender.analysis.FaceAnalyser``) parameters, an :class:`Encoder`
-packets, a :class:`Decoder` events (``protocol.events``), a :class:`View`
+estimator (``sender.analysis.FaceAnalyser``) parameters, the encoder
+(``protocol.encoder.PacketEncoder``, one kind) packets, a :class:`Decoder` events (``protocol.events``), a :class:`View`
 pixels, and a :class:`Sink` takes them. Any object with these members is one
 (``typing.Protocol``): tests pass fakes, and mypy checks the real ones where
 they are used.
@@ -30,16 +30,6 @@ class Tracker(Protocol):
     """One frame -> (468, 3) float32 landmarks in pixels (x right, y down, z away), None without a face."""
 
     def track(self, frame_bgr: np.ndarray) -> np.ndarray | None: ...
-
-
-class Encoder(Protocol):
-    """Parameters -> packets: the header (and face model) first, then what each frame completes, then the end."""
-
-    def header(self) -> list[bytes]: ...
-
-    def frame(self, params: np.ndarray, face_seen: bool) -> list[bytes]: ...
-
-    def end(self) -> list[bytes]: ...
 
 
 class Decoder(Protocol):
