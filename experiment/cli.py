@@ -26,10 +26,11 @@ at its floor). Coded streams, crops and face models stay in <out>/work/.
 
 def parse_args(argv=None) -> argparse.Namespace:
     from facedeform.experiment.baselines import CODECS
+    from facedeform.sender.config import QUALITY_RATES
 
     p = ArgumentParser(prog="fd-experiment", epilog=EPILOG, description=(
         "Bitrate against quality: each clip is cut to one square face crop per size, written losslessly "
-        "once; every codec takes that crop: this codec over quality levels (fd-enroll, fd-send, fd-recv), "
+        "once; every codec takes that crop: this codec over its qualities (fd-enroll, fd-send, fd-recv), "
         "and x264, x265, SVT-AV1 and VVenC from their floor (coarsest quantiser) up. Every decoded video is "
         "measured whole against the crop (PSNR of R, G, B and its 5th percentile over frames, SSIM and "
         "MS-SSIM on luma, VMAF) and with the same tracker (AKD, mouth AKD, mouth-opening correlation, "
@@ -39,8 +40,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--sizes", type=int, nargs="+", default=[256, 512], choices=(128, 256, 512),
                    help="face-crop sizes (default 256 512)")
     p.add_argument("--qualities", type=int, nargs="*", default=[1, 2, 3, 4, 5], choices=range(1, 6),
-                   metavar="Q", help="our quality levels (default 1 2 3 4 5; fd-send's default is 3; none: only "
-                                     "--bitrates)")
+                   metavar="Q", help="our runs at fd-send --quality Q, the rates " + ", ".join(
+                       f"{r / 1000:g}" for r in QUALITY_RATES.values()) + " kbit/s (default all five; none: only "
+                       "--bitrates and --levels)")
+    p.add_argument("--levels", type=int, nargs="*", default=[], choices=range(1, 6), metavar="L",
+                   help="also our runs at fd-send --level L, the parameters' quantiser level without a rate "
+                        "(fd-send's default is 3)")
     p.add_argument("--bitrates", type=number(0.5, 1000), nargs="*", default=[], metavar="KBPS",
                    help="also our runs at these rates (fd-send --bitrate: with the own face, what the parameters "
                         "leave carries the picture layer), e.g. 1.5 4 10 30")
@@ -80,6 +85,7 @@ def _run(args) -> int:
     from facedeform.experiment.metrics import vmaf_available
     from facedeform.experiment.report import bd_table, plot, table, write_rows
     from facedeform.experiment.runs import ours_name
+    from facedeform.sender.config import QUALITY_RATES
 
     if not (args.faces or args.baselines):
         raise InputError("nothing to run: give --faces or --baselines")
@@ -101,7 +107,8 @@ def _run(args) -> int:
             clip = prepare(path, size, work, args.seconds)
             say(f"fd-experiment: {clip.name} at {size}x{size}: {len(clip.frames)} frames at {clip.fps:g} fps")
             prepared.append({"name": clip.name, "path": str(clip.path), "fps": clip.fps, "size": size})
-    settings = [f"q{q}" for q in args.qualities] + [f"{b:g}k" for b in args.bitrates]
+    rates = [QUALITY_RATES[q] / 1000 for q in args.qualities] + args.bitrates
+    settings = [f"l{level}" for level in args.levels] + [f"{b:g}k" for b in dict.fromkeys(rates)]
     tasks = [{**c, "kind": "ours", "layout": layout, "setting": s, "own": face == "own", "every": n,
               "work": str(work), "key": f"{ours_name(layout, face == 'own', n)}_{s}"}
              for c in prepared for face in args.faces for layout in args.layouts for s in settings
@@ -184,8 +191,9 @@ def execute(task: dict) -> dict:
 
 
 def _side_by_side(clip: dict, rows: list, out: Path) -> None:
-    """original | ours (fd-send's default quality, own face if run) | x264 at the rate nearest ours
-    (one-off bytes counted) | SVT-AV1 at its floor, from the streams the runs left in the work folder."""
+    """original | ours (fd-send's default level if run, else our lowest rate; own face if run) | x264 at
+    the rate nearest ours (one-off bytes counted) | SVT-AV1 at its floor, from the streams the runs left
+    in the work folder."""
     from facedeform.experiment.baselines import CODECS, decode
     from facedeform.experiment.clips import read_video
     from facedeform.experiment.report import side_by_side
@@ -197,7 +205,7 @@ def _side_by_side(clip: dict, rows: list, out: Path) -> None:
     mine = sorted((r for r in same if r["codec"].startswith("ours")), key=lambda r: r["bitrate_bps"])
     mine = [r for r in mine if "-own" in r["codec"]] or mine
     if mine:
-        ours = next((r for r in mine if r["setting"] == "q3"), mine[len(mine) // 2])
+        ours = next((r for r in mine if r["setting"] == "l3"), mine[0])
         face = [str(work / f"{clip['name']}_{size}.fdface")] if "-own" in ours["codec"] else []
         frames = receive(work / f"{clip['name']}_{size}_{ours['codec']}_{ours['setting']}.fd", size, face)
         columns.append((f"ours {ours['bitrate_bps'] / 1000:.2f} kbit/s, {ours['bitrate_oneoff_bps'] / 1000:.1f} "

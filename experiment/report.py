@@ -166,9 +166,11 @@ def table(rows: list[dict]) -> str:
     for size in sorted({r["size"] for r in rows}):
         at = [r for r in rows if r["size"] == size]
         picks = []
-        ours = [r for r in at if r["codec"] == "ours-auto-own" and r["setting"] == "q3"]
-        if ours:
-            picks.append(("ours, default (auto, q3, own face)", ours))
+        own = [r for r in at if r["codec"] == "ours-auto-own"]
+        if own:  # fd-send's defaults if run, else our lowest rate
+            setting = "l3" if any(r["setting"] == "l3" for r in own) else min(
+                own, key=lambda r: r["bitrate_bps"])["setting"]
+            picks.append((f"ours, auto, {setting}, own face", [r for r in own if r["setting"] == setting]))
         for codec in sorted({r["codec"] for r in at if not r["codec"].startswith("ours")}):
             settings: dict[str, list] = {}
             for r in at:

@@ -67,13 +67,13 @@ def run_ours(clip: Clip, setting: str, layout: str, work: Path, own_face: bool =
              every: int = 1) -> tuple[dict, list]:
     """fd-send then fd-recv on the clip's crop, with the generic face or the speaker's own model
     (shared beforehand: its bytes count as one-off, with the stream header), sending one frame in
-    ``every`` with parameter set ``layout`` (auto: fd-send's own choice) at ``setting``: a quality
-    level "q3" or a rate "4k" (kbit/s); returns the row and the decoded frames, at the crop's size."""
+    ``every`` with parameter set ``layout`` (auto: fd-send's own choice) at ``setting``: a quantiser
+    level "l3" or a rate "4k" (kbit/s); returns the row and the decoded frames, at the crop's size."""
     size = clip.frames[0].shape[0]
     name = ours_name(layout, own_face, every)
     stream = Path(work) / f"{clip.name}_{size}_{name}_{setting}.fd"
     face = ["--face", str(enroll(clip, work))] if own_face else []
-    rate = ["--quality", setting[1:]] if setting.startswith("q") else ["--bitrate", setting[:-1]]
+    rate = ["--level", setting[1:]] if setting.startswith("l") else ["--bitrate", setting[:-1]]
     started = time.perf_counter()
     _tool("facedeform.sender.cli", str(clip.path), *rate, "--params", layout,
           "--send-every", str(every), "-o", str(stream), "-q", *(face + ["--face-by-id"] if own_face else []))

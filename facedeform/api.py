@@ -44,7 +44,8 @@ def encode(video: str | PathLike | Iterable[np.ndarray], face: Face | str | Path
     video: a path, or an iterable of (H, W, 3) uint8 RGB frames at ``fps``; face: the person's
     face model (a :class:`Face` or a path; None: the generic face); key: 32 bytes
     (``common.keys``) to seal every packet with; options: ``sender.config.SendConfig``'s fields
-    (quality, layout, bitrate in bit/s, dead_zone, rule, ...).
+    (quality 1-5 or bitrate in bit/s as fd-send's --quality and --bitrate, or a quantiser level;
+    layout, dead_zone, rule, ...).
     """
     from facedeform.sender.config import SendConfig
     from facedeform.sender.session import SendSession

@@ -9,7 +9,7 @@ from facedeform.common.cli import ArgumentParser, check_output, number, run_main
 from facedeform.protocol.quantise import DEFAULT_QUALITY
 from facedeform.protocol.secure import TAG_BITS
 from facedeform.sender.analysis import LAYOUT_NAMES
-from facedeform.sender.config import BITRATE, LIMITS, SPEAKER_RATE, SendConfig, default
+from facedeform.sender.config import BITRATE, LIMITS, QUALITY_RATES, SPEAKER_RATE, SendConfig, default
 
 EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
@@ -68,7 +68,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     rate = p.add_mutually_exclusive_group()
     rate.add_argument("--bitrate", type=number(BITRATE[0] / 1000, BITRATE[1] / 1000),
                       metavar="KBPS",
-                      help="the stream's rate after its header, in kbit/s, instead of a --quality. With a --face "
+                      help="the stream's rate after its header, in kbit/s (--quality names five). With a --face "
                            "that has a reference picture (fd-enroll's default) and a rate where it pays, the "
                            "parameters aim at 20 %% of it (at least 1.2 kbit/s) and the rest carries the real frame "
                            "as a small AV1 video, drawn "
@@ -79,13 +79,17 @@ def parse_args(argv=None) -> argparse.Namespace:
                            "zone widened as the call goes where livelier talking costs more. Over udp:// it counts "
                            "the copies (--redundancy) and the header's repeats for late joiners (all but those "
                            "of the first 4 s, which are one-off like the header)")
-    rate.add_argument("--quality", type=number(*LIMITS["quality"], kind=int), default=default("quality"),
-                      metavar="1-5",
-                      help="quantiser fineness, 1 (coarse, fewest bits) to 5 (fine); each level halves the "
-                           f"steps of the one below. Default: {DEFAULT_QUALITY}, and with a --face from fd-enroll "
-                           f"(its own motion basis) a coarser level where the speaker's first second needs it to "
-                           f"stay within {SPEAKER_RATE / 1000:g} kbit/s, with a dead zone widened where the call "
-                           f"later costs more")
+    rate.add_argument("--quality", type=number(*LIMITS["quality"], kind=int), metavar="1-5",
+                      help="the picture's quality as a --bitrate: " + ", ".join(
+                          f"{q} {r / 1000:g}" for q, r in QUALITY_RATES.items()) + " kbit/s. 1 is the face "
+                           "model alone; from 2 on, with a --face that has a reference picture, the rest of the "
+                           "rate carries the picture layer, and every step up buys picture")
+    rate.add_argument("--level", type=number(*LIMITS["level"], kind=int), metavar="1-5",
+                      help="instead of a rate, the parameters' quantiser level, 1 (coarse, fewest bits) to 5 "
+                           f"(fine); each level halves the steps of the one below. Default: {DEFAULT_QUALITY}, and "
+                           f"with a --face from fd-enroll (its own motion basis) a coarser level where the "
+                           f"speaker's first second needs it to stay within {SPEAKER_RATE / 1000:g} kbit/s, with a "
+                           f"dead zone widened where the call later costs more")
     p.add_argument("--dead-zone", type=number(*LIMITS["dead_zone"]), default=default("dead_zone"), metavar="STEPS",
                    help="a parameter is resent only once it is this many quantiser steps from what the "
                         f"receiver shows ({_span('dead_zone')}; default %(default)s): tracker jitter below it costs "
@@ -158,11 +162,12 @@ def _run(args) -> int:
         source = PacedSource(source)
     progress = progress_for("fd-send", args.quiet or args.json) if source.length else None
     face = Face.load(args.face, key) if args.face else None  # a sealed file opens with the stream's key
-    config = SendConfig(args.quality, args.frames_per_packet, args.params, args.neutral, args.smoothing,
+    config = SendConfig(args.level, args.frames_per_packet, args.params, args.neutral, args.smoothing,
                         embed_face=not args.face_by_id, key=key, tag_bits=args.tag_bits or default("tag_bits"),
                         dead_zone=args.dead_zone, bitrate=None if args.bitrate is None else 1000 * args.bitrate,
                         basis=not args.no_basis, divisor=args.send_every,
-                        datagrams=args.output.startswith("udp://"), redundancy=args.redundancy, rule=args.rule)
+                        datagrams=args.output.startswith("udp://"), redundancy=args.redundancy, rule=args.rule,
+                        quality=args.quality)
     if face is not None and config.bitrate is not None and config.picture_layer:
         from facedeform.codec.render.render import WARMING_UP, warm_up
         from facedeform.common.progress import slow_step

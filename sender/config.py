@@ -24,8 +24,12 @@ BITRATE = (1.0, 1e6)  # bit/s
 #: this, the picture moved by at most 0.07 dB (README, expression table).
 SPEAKER_RATE = 1500.0
 #: name -> (lowest, highest) accepted value of the numeric settings (inclusive; None: unbounded).
+#: --quality N: the whole call's rate in bit/s, as --bitrate gives it. 1 is the face model alone (the
+#: picture layer pays from about 3 kbit/s at 256x256); each step up buys picture (docs/picture_layer.md).
+QUALITY_RATES = {1: 1500.0, 2: 4000.0, 3: 10000.0, 4: 20000.0, 5: 30000.0}
 LIMITS: dict[str, tuple[float, float | None]] = {
-    "quality": (min(QUALITIES), max(QUALITIES)),
+    "level": (min(QUALITIES), max(QUALITIES)),
+    "quality": (min(QUALITY_RATES), max(QUALITY_RATES)),
     "frames_per_packet": (1, MAX_COUNT),
     "smoothing": (0.0, 10.0),
     "dead_zone": (0.5, MAX_DEAD_ZONE),
@@ -40,15 +44,16 @@ LIMITS: dict[str, tuple[float, float | None]] = {
 class SendConfig:
     """How a call is coded.
 
-    quality: quantiser level (``protocol.quantise``; None: its DEFAULT_QUALITY, and with the speaker's
-    own motion basis coarser where needed to keep within :data:`SPEAKER_RATE`); frames_per_packet: frames sent together
+    level: quantiser level (``protocol.quantise``; None: its DEFAULT_QUALITY, and with the speaker's
+    own motion basis coarser where needed to keep within :data:`SPEAKER_RATE`); quality: 1-5, the
+    ``bitrate`` of :data:`QUALITY_RATES` (one of level, quality and bitrate); frames_per_packet: frames sent together
     (fewer framing bits, more latency); layout: one of ``sender.analysis.LAYOUT_NAMES``;
     neutral: the rest frame's index (None: chosen in the first second); smoothing: One Euro
     strength (0: off); embed_face: a personal face model given to the session (fd-enroll) is
     carried in the stream (else only its id, the receiver holding it); key: a pre-shared key
     (``common.keys``) to seal every packet with, tags of ``tag_bits``; dead_zone: the encoder's
-    dead zone in quantiser steps (0.5: plain rounding); bitrate: bit/s to aim at instead of
-    ``quality`` (the finest level that codes the call's first second within it, chosen before the
+    dead zone in quantiser steps (0.5: plain rounding); bitrate: bit/s to aim at instead of a
+    ``level`` (the finest level that codes the call's first second within it, chosen before the
     header goes out, and a dead zone widened as the call goes where it costs more: ``protocol.rate``);
     basis: code the principal components of the first second's motion
     (``protocol.basis``) instead of each parameter; divisor: send one frame in this many, the
@@ -61,7 +66,7 @@ class SendConfig:
     misses it (sender/picture_layer.py; the parameters then aim at :func:`parameter_rate` of it).
     """
 
-    quality: int | None = None
+    level: int | None = None
     frames_per_packet: int = 2
     layout: str = "auto"
     neutral: int | None = None
@@ -77,12 +82,17 @@ class SendConfig:
     redundancy: int = COPIES
     rule: str = DEFAULT_RULE
     picture_layer: bool = True
+    quality: int | None = None
 
     def __post_init__(self) -> None:
         for name, (lo, hi) in LIMITS.items():
             value = getattr(self, name)
             if value is not None and not in_range(value, lo, hi):
                 raise InputError(f"{name.replace('_', ' ')} must be {describe_range(lo, hi)}, not {value!r}")
+        if sum(v is not None for v in (self.level, self.quality, self.bitrate)) > 1:
+            raise InputError("give one of a quality, a bitrate and a level, not more")
+        if self.quality is not None:
+            object.__setattr__(self, "bitrate", QUALITY_RATES[self.quality])
         if self.layout not in LAYOUT_NAMES:
             raise InputError(f"unknown layout {self.layout!r} (one of {', '.join(LAYOUT_NAMES)})")
         check_rule(self.rule)

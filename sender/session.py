@@ -160,7 +160,7 @@ class SendSession:
             and layer_pays(config.bitrate, reference.image.shape[1::-1])) else None
         self._aim, self._finest, self._level_share = self._parameter_aim(resolve_layout(config.layout, model))
         self._keeper: RateKeeper | None = None
-        self._configure(DEFAULT_QUALITY if config.quality is None else config.quality)
+        self._configure(DEFAULT_QUALITY if config.level is None else config.level)
         self.frame_count = 0
         self._dump_path = dump
         self._dump: NpzAppender | None = None
@@ -185,7 +185,7 @@ class SendSession:
             if self._layer_rate is not None:
                 return parameter_rate(bitrate), max(QUALITIES), 1.0
             return bitrate, max(QUALITIES), LEVEL_SHARE
-        default = self.config.quality is None and layout == "personal"
+        default = self.config.level is None and layout == "personal"
         return (SPEAKER_RATE if default else None), DEFAULT_QUALITY, 1.0
 
     def _header(self, quality: int) -> Header:

@@ -222,5 +222,20 @@ def test_out_of_range_rate_options_are_refused(option):
     assert option[0] in err or option[0].strip("-").replace("-", " ") in err
 
 
-def test_bitrate_and_quality_exclude_each_other():
-    assert_one_line_error(run(SEND + [str(CLIP), "--bitrate", "1", "--quality", "2"]), "fd-send")
+@pytest.mark.parametrize("both", [["--bitrate", "1", "--quality", "2"], ["--quality", "2", "--level", "3"],
+                                  ["--bitrate", "4", "--level", "1"]])
+def test_bitrate_quality_and_level_exclude_each_other(both):
+    assert_one_line_error(run(SEND + [str(CLIP), *both]), "fd-send")
+
+
+def test_a_quality_is_a_rate_and_a_level_is_not():
+    from facedeform.common.errors import InputError
+    from facedeform.sender.cli import parse_args
+    from facedeform.sender.config import QUALITY_RATES, SendConfig
+
+    assert list(QUALITY_RATES.values()) == sorted(QUALITY_RATES.values())
+    args = parse_args(["clip.mp4", "--quality", "2"])
+    assert SendConfig(quality=args.quality).bitrate == QUALITY_RATES[2] == 4000.0
+    assert SendConfig(level=2).bitrate is None
+    with pytest.raises(InputError, match="one of a quality, a bitrate and a level"):
+        SendConfig(quality=2, bitrate=4000.0)

@@ -19,7 +19,7 @@ from facedeform.experiment.cli import _clip, main
 from facedeform.protocol.framing import packet_size
 from tests.support import CLIP
 
-ARGS = ["--seconds", "2", "--sizes", "128", "--qualities", "3", "--baselines", "x264", "--rungs", "3", "-q"]
+ARGS = ["--seconds", "2", "--sizes", "128", "--qualities", "--levels", "3", "--baselines", "x264", "--rungs", "3", "-q"]
 PIXEL = {"psnr": (5, 60), "psnr_p5": (5, 60), "ssim": (-1, 1), "ms_ssim": (0, 1), "vmaf": (0, 100)}
 KEYPOINT = {"akd": (0, 1), "mouth_akd": (0, 1), "akd_aligned": (0, 0.5), "mouth_akd_aligned": (0, 0.5),
             "opening_corr": (-1, 1), "opening_swing": (0.3, 3), "eye_corr": (-1, 1), "motion_fidelity": (0, 1.5)}
@@ -37,11 +37,11 @@ def results(tmp_path_factory):
 def test_one_row_per_run_in_csv_json_and_its_own_file(results):
     out, rows = results
     assert sorted((r["codec"], r["setting"]) for r in rows) == [
-        ("ours-auto-own", "q3"), ("x264", "crf45"), ("x264", "crf48"), ("x264", "crf51")]
+        ("ours-auto-own", "l3"), ("x264", "crf45"), ("x264", "crf48"), ("x264", "crf51")]
     with open(out / "results.csv") as f:
         assert [(r["codec"], r["setting"]) for r in csv.DictReader(f)] == [(r["codec"], r["setting"]) for r in rows]
     assert sorted(p.name for p in (out / "rows").iterdir()) == [
-        "grid_bbaf2n_128_ours-auto-own_q3.json", "grid_bbaf2n_128_x264_crf45.json", "grid_bbaf2n_128_x264_crf48.json",
+        "grid_bbaf2n_128_ours-auto-own_l3.json", "grid_bbaf2n_128_x264_crf45.json", "grid_bbaf2n_128_x264_crf48.json",
         "grid_bbaf2n_128_x264_crf51.json"]
 
 
@@ -55,7 +55,7 @@ def test_every_measure_is_present_and_in_range(results):
         assert row["psnr_p5"] <= row["psnr"]
         assert row["encode_fps"] > 0 and row["decode_fps"] > 0
     # the finest x264 and ours find the face in every frame; x264's floor at 128x128 may lose it
-    for row in (r for r in rows if r["setting"] in ("q3", "crf45")):
+    for row in (r for r in rows if r["setting"] in ("l3", "crf45")):
         assert row["faces_found"] > 0.9
         for key, (lo, hi) in KEYPOINT.items():
             assert lo <= row[key] <= hi, (row["codec"], key, row[key])
@@ -81,7 +81,7 @@ def test_our_rates_are_the_stream_file_and_the_one_off_bytes(results):
     out, rows = results
     model = (out / "work" / "grid_bbaf2n_128.fdface").stat().st_size
     row = next(r for r in rows if r["codec"] == "ours-auto-own")
-    data = (out / "work" / "grid_bbaf2n_128_ours-auto-own_q3.fd").read_bytes()
+    data = (out / "work" / "grid_bbaf2n_128_ours-auto-own_l3.fd").read_bytes()
     header = 1 + packet_size(data, 1)
     assert (row["stream_bytes"], row["oneoff_bytes"]) == (len(data) - header, header + model)
     per_frame = 8 * (len(data) - header) * 25 / 50
@@ -116,7 +116,7 @@ def test_plots_table_and_side_by_side_are_written(results):
                  "overview_128.png", "side_by_side_grid_bbaf2n_128.mp4"):
         assert (out / name).stat().st_size > 1000
     table = (out / "table.md").read_text()
-    assert "ours, default (auto, q3, own face)" in table and "x264 crf51 (floor)" in table
+    assert "ours, auto, l3, own face" in table and "x264 crf51 (floor)" in table
     assert "x264 crf45 (~3x floor)" in table or "x264 crf48 (~3x floor)" in table
 
 

@@ -151,7 +151,7 @@ def test_enrol_then_send_the_personal_layout_end_to_end(tmp_path, over):
     assert (model.motion.components, model.motion.over) == (4, over)
     stream = tmp_path / "s.fd"
     params = ["--params", "personal"] if over == "paper" else []  # the default for a face with a basis
-    sent = _run(["facedeform.sender.cli", str(CLIP), "--face", str(face), *params, "--quality", "3",  # dead zone fixed
+    sent = _run(["facedeform.sender.cli", str(CLIP), "--face", str(face), *params, "--level", "3",  # dead zone fixed
                  "-o", str(stream), "--dump", str(tmp_path / "sent.npz"), "-q"])
     assert sent.returncode == 0, sent.stderr.decode()
     got = _run(["facedeform.receiver.cli", str(stream), "-o", str(tmp_path / "out.y4m"), "--size", "64",

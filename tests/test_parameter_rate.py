@@ -48,7 +48,7 @@ def test_a_rate_below_the_coarsest_level_is_kept_closer_by_the_dead_zone(face):
     """At 0.2 kbit/s the coarsest level is chosen and still costs more; the widened dead zone
     makes the stream smaller than the same level with the call's own."""
     _, kept_rate, kept_level = send(face=face, bitrate=200)
-    _, fixed_rate, fixed_level = send(face=face, quality=1)
+    _, fixed_rate, fixed_level = send(face=face, level=1)
     assert kept_level == fixed_level == 1 and fixed_rate > 200
     assert kept_rate < 0.9 * fixed_rate
 
@@ -57,7 +57,7 @@ def test_with_a_speakers_motion_basis_the_default_keeps_level_3_within_the_speak
     """The sample's speaker costs less than SPEAKER_RATE at level 3: the default is level 3 exactly;
     a speaker that costs more (here: a lower rate to keep) gets a coarser level and stays within it."""
     default, rate, level = send(face=face)
-    assert rate <= SPEAKER_RATE and level == 3 and default == send(face=face, quality=3)[0]
+    assert rate <= SPEAKER_RATE and level == 3 and default == send(face=face, level=3)[0]
     monkeypatch.setattr(session, "SPEAKER_RATE", rate / 2)
     _, thin, coarser = send(face=face)
     assert coarser < 3 and thin <= rate / 2
@@ -65,7 +65,7 @@ def test_with_a_speakers_motion_basis_the_default_keeps_level_3_within_the_speak
 
 def test_a_quality_or_the_generic_face_keeps_a_fixed_level():
     generic, _, level = send()
-    assert generic == send(quality=3)[0] and level == 3
+    assert generic == send(level=3)[0] and level == 3
 
 
 def test_where_no_picture_layer_runs_the_parameters_aim_at_the_whole_rate(face):

@@ -79,6 +79,7 @@ def test_input_errors_are_one_line(args, message):
     (["--fps", "0"], "out of range"),
     (["--fps", "nan"], "out of range"),
     (["--quality", "9"], "out of range"),
+    (["--level", "0"], "out of range"),
     (["--send-every", "x"], "not an integer"),
 ])
 def test_absurd_numbers_are_refused_before_any_work(args, message):
