@@ -61,6 +61,9 @@ PUPIL = (0.01, 0.01, 0.01)
 PUPIL_RATIO = 0.45  # pupil radius over iris radius
 EDGE = 0.12  # width of the iris and pupil rims, in iris radii (soft edges)
 SPEC_STEPS = 1024  # intervals of the specular table over n.h in [0, 1]
+#: OpenCV's remap works in 1/32 texels (INTER_BITS 5): draw writes each texel position as its whole
+#: texel and that fraction, rounded as remap rounds a float map, so remap skips the conversion.
+REMAP_BITS = 5
 
 # fast math touches only shading: coverage and snapping are integer or exact
 # arithmetic; no nnan/ninf, since buffers hold inf
@@ -233,7 +236,7 @@ def lit(inv, dots, x, cr, cg, cb, ambient, light_rgb, spec_lut, spec_cut):
 
 @njit(cache=True, fastmath=FAST, error_model="numpy")
 def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, count, shading,
-         view, tex, teeth, eyes, encode, image, depth, linear, maps, warped):
+         view, tex, teeth, eyes, encode, image, depth, linear, maps, fractions, warped):
     """Draw all triangles, in index order, into a cleared frame; return the drawn box.
 
     screen: (n, 4) float64 from Camera.project (of a perspective camera if
@@ -253,18 +256,20 @@ def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, 
     mouth and eye_albedo. encode: (65536,) uint8 linear->sRGB. Fragments go
     to image (sH, sW, 3) uint8 and depth (sH, sW) float32 if linear has shape
     (0, 0, 3), else to linear (sH, sW, 3) float32 as linear RGB, for resolve.
-    maps: (2, sH, sW) float32 and warped (sH, sW) uint8, or shapes (2, 0, 0)
-    and (0, 0): if given, tex is uint8 sRGB drawn as it is, with its last
+    maps: (sH, sW, 2) int16, fractions and warped (sH, sW) uint16 and uint8, or
+    shapes (0, 0, 2) and (0, 0): if given, tex is uint8 sRGB drawn as it is, with its last
     column and row once more (a bilinear lookup's second taps there), and its
     fragments are not shaded here: each one's texel position (x, y down,
-    centres at whole numbers, clamped to the texture) goes to maps for a remap,
-    and warped marks them 1, every other drawn pixel 0 (the clear box first).
+    centres at whole numbers, clamped to the texture) goes to maps (whole
+    texels) and fractions (y and x in 1/32 texels, OpenCV's fixed-point map
+    pair) for a remap, and warped marks them 1, every other drawn pixel 0 (the
+    clear box first).
     Returns (x0, y0, x1, y1), inclusive, with x0 > x1 if nothing was drawn.
     error_model="numpy": no checks for division by zero, which would keep
     loops from vectorising.
     """
     height, width = nearness.shape
-    deferred = maps.shape[1] > 0
+    deferred = maps.shape[0] > 0
     for y in range(clear[1], clear[3] + 1):
         nearness[y, clear[0]:clear[2] + 1] = -np.inf
         if deferred:
@@ -401,8 +406,13 @@ def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, 
                 nearness[uy, ux] = z
                 if remapped:
                     x = np.float64(i)
-                    maps[0, uy, ux] = min(max((du * x + u0) * w[i] * tw - 0.5, 0.0), tw - 1.0)
-                    maps[1, uy, ux] = min(max((1.0 - (dv * x + v0) * w[i]) * th - 0.5, 0.0), th - 1.0)
+                    tx = np.float32(min(max((du * x + u0) * w[i] * tw - 0.5, 0.0), tw - 1.0))
+                    ty = np.float32(min(max((1.0 - (dv * x + v0) * w[i]) * th - 0.5, 0.0), th - 1.0))
+                    fx = np.int32(np.rint(tx * np.float32(1 << REMAP_BITS)))  # half to even, as remap rounds
+                    fy = np.int32(np.rint(ty * np.float32(1 << REMAP_BITS)))
+                    maps[uy, ux, 0] = fx >> REMAP_BITS
+                    maps[uy, ux, 1] = fy >> REMAP_BITS
+                    fractions[uy, ux] = ((fy & ((1 << REMAP_BITS) - 1)) << REMAP_BITS) | (fx & ((1 << REMAP_BITS) - 1))
                     warped[uy, ux] = 1
                     depth[uy, ux] = 1.0 / np.float64(z) if perspective else -z
                     continue

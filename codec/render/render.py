@@ -161,7 +161,8 @@ class Renderer:
         self._linear = np.zeros((*shape, 3) if supersample > 1 else (0, 0, 3), np.float32)
         self._drawn = (0, 0, -1, -1)  # the last frame's drawn box, to clear
         self._no_count = np.zeros((0, 0), np.int32)
-        self._maps = np.zeros((2, *shape) if self._own else (2, 0, 0), np.float32)  # x, y (raster.draw)
+        self._maps = np.zeros((*shape, 2) if self._own else (0, 0, 2), np.int16)  # whole texels x, y (raster.draw)
+        self._fractions = np.zeros(shape if self._own else (0, 0), np.uint16)  # and their fractions
         self._warped = np.zeros(shape if self._own else (0, 0), np.uint8)
 
     def _mask(self, mask, name: str) -> np.ndarray:
@@ -269,12 +270,12 @@ class Renderer:
                    self._drawn, self._nearness, count, shading, view, self._texture,
                    teeth_columns(screen, self._mouth_vertices, sw),
                    eye_discs(v, self.faces, *self._eye_pieces, irises), _ENCODE, image, depth,
-                   self._linear, self._maps, self._warped)
+                   self._linear, self._maps, self._fractions, self._warped)
         self._drawn = box
         if self._own and box[0] <= box[2]:  # (remap's BORDER_TRANSPARENT, which would save the copy,
             # writes to some 3-channel pixels it should leave, differently by thread count)
             rows, columns = slice(box[1], box[3] + 1), slice(box[0], box[2] + 1)
-            warped = cv2.remap(self._texture, self._maps[0, rows, columns], self._maps[1, rows, columns],
+            warped = cv2.remap(self._texture, self._maps[rows, columns], self._fractions[rows, columns],
                                cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
             cv2.copyTo(warped, self._warped[rows, columns], image[rows, columns])
         if ss > 1 and box[0] <= box[2]:
