@@ -156,7 +156,7 @@ def _run(args) -> int:
         for i in range(count):
             params = interpolate(times, keys, i / args.fps)
             vertices = deformer.deform_extended(params)
-            writer.write(renderer.render(vertices, camera, deformer.iris(params)[0])[0])
+            writer.write(renderer.image(vertices, camera, deformer.iris(params)[0]))
     finally:
         writer.close()
     if not args.quiet:

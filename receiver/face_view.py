@@ -113,7 +113,7 @@ class FaceView:
         full = self._full(params)
         vertices = self._deformer.deform_extended(full, f3_with_jaw=self._f3_with_jaw)
         irises = self._deformer.iris(full)[0]
-        return self._renderer.render(vertices, self._camera, irises)[0]
+        return self._renderer.image(vertices, self._camera, irises)
 
 
 _POSE = slots(POSE_PARAMS)
@@ -192,7 +192,7 @@ class PictureView(FaceView):
             self._patch(0, self._scene.mouth_row, interior.drawn(opening))
         self._positions = positions
         self._drawn.append((self._seq, positions, still))
-        return self._renderer.render(positions * self._scale, self._camera)[0]
+        return self._renderer.image(positions * self._scale, self._camera)
 
     def carry(self, video: np.ndarray, since: int) -> np.ndarray:
         """The picture layer's video frame ``video`` (any size), which shows frame ``since``, at this
@@ -225,7 +225,7 @@ class PictureView(FaceView):
             self._carried_motion = motion
             carrier.set_background(video if np.array_equal(motion, _IDENTITY) else cv2.warpAffine(
                 video, motion, (vw, vh), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
-        carried = carrier.render(now * scale, _picture_camera((vw, vh)))[0]
+        carried = carrier.image(now * scale, _picture_camera((vw, vh)))
         return cv2.resize(carried, self.size, interpolation=cv2.INTER_LINEAR)
 
     @property

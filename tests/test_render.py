@@ -381,3 +381,18 @@ def test_camera_basis_is_a_copy_of_fixed_axes():
     np.testing.assert_allclose(axes[2], np.array([1, 2, 5]) / np.sqrt(30))
     axes[:] = 0.0
     assert np.abs(camera.basis()).sum() > 0  # callers cannot disturb the camera
+
+
+@pytest.mark.parametrize("supersample", [1, 2])
+@pytest.mark.parametrize("lit", [False, True])
+def test_the_image_alone_is_the_rendered_image(supersample, lit):
+    """Renderer.image keeps no depth buffer and draws the same pixels as render."""
+    ramp = np.linspace(20, 230, 24)
+    texture = np.stack(np.broadcast_arrays(ramp[None, :], ramp[:, None], ramp[::-1][None, :]), -1).astype(np.uint8)
+    verts, faces, uv = quad(4, 4, 60, 60)
+    lights = (DirectionalLight((0.3, 0.2, 1.0)),) if lit else ()
+    renderer = Renderer(faces, size=(64, 64), material=FLAT, lights=lights, uv=uv, texture=texture,
+                        supersample=supersample)
+    image, depth = renderer.render(verts, pixel_camera(64, 64))
+    np.testing.assert_array_equal(renderer.image(verts, pixel_camera(64, 64)), image)
+    assert np.isfinite(depth).any()  # render still keeps its depth

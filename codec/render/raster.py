@@ -264,12 +264,14 @@ def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, 
     texels) and fractions (y and x in 1/32 texels, OpenCV's fixed-point map
     pair) for a remap, and warped marks them 1, every other drawn pixel 0 (the
     clear box first).
+    depth of shape (0, 0): no depth is kept.
     Returns (x0, y0, x1, y1), inclusive, with x0 > x1 if nothing was drawn.
     error_model="numpy": no checks for division by zero, which would keep
     loops from vectorising.
     """
     height, width = nearness.shape
     deferred = maps.shape[0] > 0
+    keep_depth = depth.shape[0] > 0
     for y in range(clear[1], clear[3] + 1):
         nearness[y, clear[0]:clear[2] + 1] = -np.inf
         if deferred:
@@ -414,7 +416,8 @@ def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, 
                     maps[uy, ux, 1] = fy >> REMAP_BITS
                     fractions[uy, ux] = ((fy & ((1 << REMAP_BITS) - 1)) << REMAP_BITS) | (fx & ((1 << REMAP_BITS) - 1))
                     warped[uy, ux] = 1
-                    depth[uy, ux] = 1.0 / np.float64(z) if perspective else -z
+                    if keep_depth:
+                        depth[uy, ux] = 1.0 / np.float64(z) if perspective else -z
                     continue
                 if deferred:
                     warped[uy, ux] = 0
@@ -440,7 +443,8 @@ def draw(screen, perspective, pos, uv, faces, kind, near, far, clear, nearness, 
                     image[uy, ux, 0] = encode[np.uint64(min(max(cr, 0.0), 1.0) * 65535.0 + 0.5)]
                     image[uy, ux, 1] = encode[np.uint64(min(max(cg, 0.0), 1.0) * 65535.0 + 0.5)]
                     image[uy, ux, 2] = encode[np.uint64(min(max(cb, 0.0), 1.0) * 65535.0 + 0.5)]
-                    depth[uy, ux] = 1.0 / np.float64(z) if perspective else -z
+                    if keep_depth:
+                        depth[uy, ux] = 1.0 / np.float64(z) if perspective else -z
                 else:
                     linear[uy, ux, 0] = cr
                     linear[uy, ux, 1] = cg
@@ -456,9 +460,10 @@ def resolve(nearness, linear, box, perspective, bg, decode, encode, image, depth
     box (x0, y0, x1, y1) in samples. bg: (H, W, 3) uint8 sRGB stands in for
     uncovered samples; decode (256,) float64 sRGB->linear; encode (65536,)
     uint8 linear->sRGB. Writes image (H, W, 3) uint8 and depth (H, W) float32
-    (the nearest sample's) where any sample is covered; the caller fills the
-    rest. Samples average in linear light.
+    (the nearest sample's; none if its shape is (0, 0)) where any sample is covered; the caller
+    fills the rest. Samples average in linear light.
     """
+    keep_depth = depth.shape[0] > 0
     for y in range(box[1] // 2, box[3] // 2 + 1):
         for x in range(box[0] // 2, box[2] // 2 + 1):
             covered = 0
@@ -483,4 +488,5 @@ def resolve(nearness, linear, box, perspective, bg, decode, encode, image, depth
             image[y, x, 0] = encode[int(min(max(ar * 0.25, 0.0), 1.0) * 65535.0 + 0.5)]
             image[y, x, 1] = encode[int(min(max(ag * 0.25, 0.0), 1.0) * 65535.0 + 0.5)]
             image[y, x, 2] = encode[int(min(max(ab * 0.25, 0.0), 1.0) * 65535.0 + 0.5)]
-            depth[y, x] = 1.0 / nearest if perspective else -nearest
+            if keep_depth:
+                depth[y, x] = 1.0 / nearest if perspective else -nearest

@@ -38,6 +38,7 @@ def linear_to_srgb(values) -> np.ndarray:
 
 _DECODE = srgb_to_linear(np.arange(256) / 255.0)
 _NO_IRISES = np.zeros((0, 3))
+_NO_DEPTH = np.zeros((0, 0), np.float32)  # Renderer.image: no depth kept
 _ENCODE = np.round(linear_to_srgb(np.arange(65536) / 65535.0) * 255.0).astype(np.uint8)
 
 
@@ -241,7 +242,13 @@ class Renderer:
         """
         return self._render(vertices, camera, irises, self._no_count)
 
-    def _render(self, vertices, camera: Camera, irises, count) -> tuple[np.ndarray, np.ndarray]:
+    def image(self, vertices, camera: Camera, irises=None) -> np.ndarray:
+        """:meth:`render`'s image alone, without keeping a depth buffer (which the pictures the
+        receiver draws never read: at 1080p a 8 MB fill and a write per pixel saved)."""
+        return self._render(vertices, camera, irises, self._no_count, keep_depth=False)[0]
+
+    def _render(self, vertices, camera: Camera, irises, count,
+                keep_depth: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """render(), also counting every fragment into count (sH, sW) int32 unless it is (0, 0)."""
         v = np.asarray(vertices)
         if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] < self._min_vertices:
@@ -262,7 +269,7 @@ class Renderer:
         screen = camera.project(v, (sw, sh))
         persp = camera.is_perspective
         image = self._background.copy()
-        depth = np.full((height, width), np.inf, np.float32)
+        depth = np.full((height, width), np.inf, np.float32) if keep_depth else _NO_DEPTH
         shading = (self._ambient, self._albedo, self._light_dir, self._light_rgb, self._spec_lut,
                    self._spec_cut, self._flat)
         view = (camera.basis(), camera.eye, 1.0 / camera.focal(sh) if persp else 0.0)
