@@ -38,7 +38,7 @@ STAGES = {  # what each stage's time is spent in: (module, class, method)
     "deform": ("facedeform.codec.model.deform", "Deformer", "deform_extended"),
     "scene mesh": ("facedeform.codec.render.picture", "SceneMesh", "positions"),
     "background warp": ("facedeform.receiver.face_view", "PictureView", "_move_background"),
-    "rasterise": ("facedeform.codec.render.render", "Renderer", "render"),
+    "rasterise": ("facedeform.codec.render.render", "Renderer", "_render"),
 }
 
 

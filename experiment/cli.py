@@ -16,8 +16,9 @@ EPILOG = """examples:
 
 Writes one file per run in <out>/rows/ as it finishes (run again with the same
 --out to resume: finished runs are not redone), then results.csv and
-results.json (one row per run), table.md (our default settings against each
-baseline at its floor and at about 3 times it), a plot per measure and size
+results.json (one row per run), table.md (ours at fd-send's default level if
+run, else at our lowest rate, against each baseline at its floor and at about
+3 times it), a plot per measure and size
 (<measure>_<size>.png, overview_<size>.png) and per clip and size a
 side-by-side video (original | ours | x264 at the rate nearest ours | SVT-AV1
 at its floor). Coded streams, crops and face models stay in <out>/work/.

@@ -75,7 +75,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                            "where the face model cannot show the frame (the picture layer: what a turn, a lean or "
                            "a moving camera uncovers), the whole kept within 10 %% of the rate over any 2 s; more "
                            "kbit/s, a better picture (none below about 3 kbit/s at 256x256). Otherwise the "
-                           "finest quality level that codes the call's first second within it, with the dead "
+                           "finest quantiser level that codes the call's first second within it, with the dead "
                            "zone widened as the call goes where livelier talking costs more. Over udp:// it counts "
                            "the copies (--redundancy) and the header's repeats for late joiners (all but those "
                            "of the first 4 s, which are one-off like the header)")
