@@ -2,7 +2,7 @@
 
 The presets are drawn by the paper's rule (top row) and, for comparison, by the
 project's refined rule (bottom row, codec/model/regions.py); the expressions by the
-refined rule, as fd-animate draws them. Rendered with codec.render.Renderer
+refined rule, as fd-animate draws them. Rendered with codec.render.render.Renderer
 through the receiver's perspective camera (receiver/face_view.py framing); run
 from anywhere:
     .venv/bin/python docs/make_preset_renders.py

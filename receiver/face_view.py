@@ -79,7 +79,7 @@ def face_renderer(face: BaseFace, size: tuple[int, int], textured: bool = True) 
 class FaceView:
     """Renders one (H, W, 3) uint8 RGB image per parameter vector of the stream's layout.
 
-    A layout is any list of names from ``codec.deform.EXTENDED_PARAMS``; the
+    A layout is any list of names from ``common.parameters.EXTENDED_PARAMS``; the
     parameters a stream leaves out stay at rest. ``check_id=False`` draws a
     face other than the one the stream names (the receiver's fallback when an
     in-band model was lost); ``textured=False`` shades the mesh as the paper does.

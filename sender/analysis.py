@@ -110,7 +110,7 @@ class FaceAnalyser:
     basis, the lids, head rotation) or "auto" (``resolve_layout``); the lids of "mouth" and
     "personal" take what the rest leaves over at them (``ModelFit.lids``); calibration_frames: how
     many frames with a face to choose the rest face from; neutral: a frame index to use instead;
-    rule: the deformation rule (codec.regions.RULES) the receiver will use, as the stream header
+    rule: the deformation rule (codec.model.regions.RULES) the receiver will use, as the stream header
     names it.
     """
 

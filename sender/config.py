@@ -60,7 +60,7 @@ class SendConfig:
     receiver interpolates the others; datagrams: the packets go one per UDP datagram, made ready
     for loss and late join by ``protocol.encoder.Datagrams``, each frames datagram carrying the
     ``redundancy`` frames packets before it again; rule: the deformation rule
-    (``codec.regions.RULES``) the parameters are fitted to and the receiver deforms with, named in
+    (``codec.model.regions.RULES``) the parameters are fitted to and the receiver deforms with, named in
     the header; picture_layer: with a ``bitrate`` and a face with a reference picture, spend what
     the parameters leave of it on the real frame as a small video where the model's picture
     misses it (sender/picture_layer.py; the parameters then aim at :func:`parameter_rate` of it).

@@ -6,7 +6,7 @@ still is wrong everywhere. Per frame, corners of the
 reference picture outside the face are followed into the frame by pyramidal
 Lucas-Kanade flow (starting from the last frame's motion, checked backwards),
 and a similarity is fitted to them with RANSAC: four numbers per frame
-(codec/picture.global_matrix), sent as GLOBAL_PARAMS.
+(codec/render/picture.global_matrix), sent as GLOBAL_PARAMS.
 
 At enrolment, :class:`RingWeights` measures how far the picture around the
 face (hair, neck, shoulders, the wall) follows the head, for the receiver's

@@ -3,7 +3,7 @@ under the rate the parameters leave (codec/render/frame_video.py).
 
 The sender runs the receiver's own view (receiver.face_view.PictureView) on the parameters the
 receiver will decode (``protocol.encoder.PacketEncoder.reconstruction``) and the receiver's own
-layer (codec.frame_video.VideoLayer) on every payload it sends, so it knows, bit for bit, what
+layer (codec.render.frame_video.VideoLayer) on every payload it sends, so it knows, bit for bit, what
 the receiver draws. For each frame it may send, it codes the frame scaled down, decodes it as
 the receiver will, and chooses the blocks where the model's picture is nearer the frame than the
 video's.

@@ -22,7 +22,7 @@ in the JSON: how far each ring vertex around the face follows the head
 takes fewer bytes: ``meta`` may be "base" (the generic face's, codec/data), the
 motion basis's patterns are <f2, and a file with a reference picture may leave the
 texture out (the face is then textured by the picture where the projection puts
-it: codec/picture.face_texture). Version 5 stores the patterns as <i1, 127 for
+it: codec/render/picture.face_texture). Version 5 stores the patterns as <i1, 127 for
 1 (a pattern's largest vertex move is 1, so every coordinate fits): since the
 basis covers the whole face that halves its bytes (16.8 KB for 12 patterns),
 and the largest vertex error it adds, 1/254 of a coefficient, is a fortieth
@@ -188,7 +188,7 @@ def personal_face(neutral: np.ndarray, texture: np.ndarray | None = None,
     """A face file from a person's (468, 3) pose-free neutral landmarks (base-face axes, e.g.
     ``sender.pose`` output), an optional (h, w, 3) uint8 RGB texture in ``base``'s UV layout,
     an optional motion basis and an optional reference picture (its projection takes the
-    normalised landmarks, :func:`codec.face_model.normalise`).
+    normalised landmarks, :func:`codec.model.face_model.normalise`).
 
     The landmarks become the vertices, normalised as the base face is (face
     height 1, bounding box centred), so the receiver's framing fits; topology,

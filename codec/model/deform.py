@@ -74,7 +74,7 @@ def extended_params(names, params: np.ndarray) -> np.ndarray:
 
 
 class Deformer:
-    """Deforms one base face by a rule of codec.regions.RULES ("paper": equations (1) and (2)
+    """Deforms one base face by a rule of codec.model.regions.RULES ("paper": equations (1) and (2)
     exactly; "refined", the default: the project's mouth slit, rounded lower lip and fold guard);
     build once, call deform() per frame. InputError for an unknown rule."""
 

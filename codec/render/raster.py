@@ -105,7 +105,7 @@ def _view(pos, perspective, axes, eye, inv_f, light_dir, width, height):
     The ray rows are d/dx, d/dy and value at sample (0, 0) of a vector along
     the sample's view ray, whose sign against the normal tells the side
     seen. The half vectors use one view direction, from the mesh's centre
-    to the eye (see codec.render). axes, eye, inv_f: see draw's view.
+    to the eye (see codec.render.render). axes, eye, inv_f: see draw's view.
     """
     ray, toward, half = np.empty((3, 3)), np.empty(3), np.empty_like(light_dir)
     for j in range(3):
