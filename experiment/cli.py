@@ -197,7 +197,7 @@ def _side_by_side(clip: dict, rows: list, out: Path) -> None:
     in the work folder."""
     from facedeform.experiment.baselines import CODECS, decode
     from facedeform.experiment.clips import read_video
-    from facedeform.experiment.report import side_by_side
+    from facedeform.experiment.report import headline, side_by_side
     from facedeform.experiment.runs import receive
 
     size, work = clip["size"], out / "work"
@@ -206,7 +206,8 @@ def _side_by_side(clip: dict, rows: list, out: Path) -> None:
     mine = sorted((r for r in same if r["codec"].startswith("ours")), key=lambda r: r["bitrate_bps"])
     mine = [r for r in mine if "-own" in r["codec"]] or mine
     if mine:
-        ours = next((r for r in mine if r["setting"] == "l3"), mine[0])
+        setting = headline(mine)
+        ours = next(r for r in mine if r["setting"] == setting)
         face = [str(work / f"{clip['name']}_{size}.fdface")] if "-own" in ours["codec"] else []
         frames = receive(work / f"{clip['name']}_{size}_{ours['codec']}_{ours['setting']}.fd", size, face)
         columns.append((f"ours {ours['bitrate_bps'] / 1000:.2f} kbit/s, {ours['bitrate_oneoff_bps'] / 1000:.1f} "

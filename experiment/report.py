@@ -153,6 +153,14 @@ def bd_table(rows: list[dict], ours: str = "ours-auto-own") -> str:
     return "\n".join(lines) + "\n"
 
 
+def headline(rows: list[dict]) -> str:
+    """The setting of ours that the table and the side-by-side video show: fd-send's default level
+    ("l3") if it was run, else our lowest rate."""
+    if any(r["setting"] == "l3" for r in rows):
+        return "l3"
+    return min(rows, key=lambda r: r["bitrate_bps"])["setting"]
+
+
 def table(rows: list[dict]) -> str:
     """Markdown: per size, our default settings (fd-send's auto parameters, quality 3, own face) and
     each baseline at its floor (its coarsest setting) and at the setting whose rate is nearest 3 times
@@ -167,9 +175,8 @@ def table(rows: list[dict]) -> str:
         at = [r for r in rows if r["size"] == size]
         picks = []
         own = [r for r in at if r["codec"] == "ours-auto-own"]
-        if own:  # fd-send's defaults if run, else our lowest rate
-            setting = "l3" if any(r["setting"] == "l3" for r in own) else min(
-                own, key=lambda r: r["bitrate_bps"])["setting"]
+        if own:
+            setting = headline(own)
             picks.append((f"ours, auto, {setting}, own face", [r for r in own if r["setting"] == setting]))
         for codec in sorted({r["codec"] for r in at if not r["codec"].startswith("ours")}):
             settings: dict[str, list] = {}
