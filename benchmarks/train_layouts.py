@@ -2,9 +2,9 @@
 parameter dumps, and measures them clip by clip held out.
 
 Per layout, the basis of :func:`protocol.basis.principal_basis` over every frame with a face of
-every dump of that layout; the same layout with the head's translation, and with the frame's
-global motion, as a face with a reference picture sends it (those on axes of their own), is held
-too. Prints the table's sha256 for protocol/layouts.py.
+every dump of that layout; the same layout with the head's translation, with the frame's
+global motion and with the body's shift, as a face with a reference picture sends it (those on
+axes of their own), is held too. Prints the table's sha256 for protocol/layouts.py.
 
 Dumps: ``fd-send CLIP -o /dev/null --dump CLIP.LAYOUT.npz --params LAYOUT`` for each dev clip
 and LAYOUT in paper, mouth, full (fd-send's other options at their defaults).
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facedeform.common.parameters import GLOBAL_PARAMS, POSE_PARAMS
+from facedeform.common.parameters import BODY_PARAMS, GLOBAL_PARAMS, POSE_PARAMS
 from facedeform.protocol import layouts as layouts_module
 from facedeform.protocol.basis import SCALE
 from facedeform.protocol.layouts import table_bytes
@@ -38,6 +38,20 @@ def widened(names: tuple[str, ...], basis: np.ndarray, extra: tuple[str, ...]) -
     out[:k, :k] = basis
     out[np.arange(k, len(out)), np.arange(k, len(out))] = SCALE
     return names + extra, out
+
+
+def picture_extras(names: tuple[str, ...]) -> tuple[tuple[str, ...], ...]:
+    """What a face with a reference picture adds to ``names``: the head's translation (which "full" has
+    already) and the frame's global motion."""
+    translation = () if "tx" in names else POSE_PARAMS[3:]
+    return tuple(dict.fromkeys(((), translation, translation + GLOBAL_PARAMS)))
+
+
+def body_extras(names: tuple[str, ...]) -> tuple[tuple[str, ...], ...]:
+    """The same with the body's shift: held after every layout of :func:`picture_extras`, which kept
+    their indices when the body's motion came."""
+    translation = () if "tx" in names else POSE_PARAMS[3:]
+    return translation + BODY_PARAMS, translation + GLOBAL_PARAMS + BODY_PARAMS
 
 
 def bits(dump, basis) -> float:
@@ -65,12 +79,9 @@ def main() -> None:
     for path in args.dumps:
         dump = read_dump(path)
         layouts[dump[0]][path.name.split(".")[0]] = dump
-    table, bases = [], {}
-    for names, by_clip in layouts.items():
-        bases[names] = basis = learnt(list(by_clip.values()))
-        translation = () if "tx" in names else POSE_PARAMS[3:]
-        extras = dict.fromkeys(((), translation, translation + GLOBAL_PARAMS))  # full has the translation already
-        table += [widened(names, basis, extra) for extra in extras]
+    bases = {names: learnt(list(by_clip.values())) for names, by_clip in layouts.items()}
+    table = [widened(names, basis, extra) for extras in (picture_extras, body_extras)
+             for names, basis in bases.items() for extra in extras(names)]
     data = table_bytes(table)
     layouts_module.PATH.write_bytes(data)
     digest = hashlib.sha256(data).hexdigest()

@@ -40,6 +40,8 @@ _GROUPS: dict[str, tuple[tuple[str, ...], str | tuple[str, ...], str]] = {
               "coefficients of the person's own motion basis (their face file)"),
     "global": (("gx", "gy", "gs", "gr"), ("length", "length", "length", "angle"),
                "the whole frame's motion against the reference picture: shift (face heights), zoom - 1, roll"),
+    "body": (("bx", "by"), "length",
+             "the body's own shift below the chin, before the frame's motion (face heights of the reference)"),
 }
 
 _GROUP = {g: names for g, (names, _, _) in _GROUPS.items()}
@@ -50,6 +52,7 @@ POSE_PARAMS = _GROUP["pose"]
 MOUTH_PARAMS = _GROUP["mouth"]
 BASIS_PARAMS = _GROUP["basis"]
 GLOBAL_PARAMS = _GROUP["global"]
+BODY_PARAMS = _GROUP["body"]
 #: The lids alone, which the default layouts carry beside the mouth (a blink the face's own basis may not know).
 LID_PARAMS = ("lid_l", "lid_r")
 ROTATION_PARAMS = POSE_PARAMS[:3]

@@ -4,7 +4,7 @@ A header whose names and basis are one of these names it by its index, one byte,
 writing some 40 names and a k x k basis: the default layout's header falls from 1,825 bytes to
 about 60, and so does each of the repeats a late joiner over UDP needs. The bases were learned
 from fd-send's parameters of the dev clips (every frame with a face, in quantiser steps, head
-pose and global motion on axes of their own: :func:`protocol.basis.principal_basis`); held out clip
+pose, global and body motion on axes of their own: :func:`protocol.basis.principal_basis`); held out clip
 by clip they code no more bits than each call's own first second (benchmarks/train_layouts.py,
 docs/bitstream.md). A layout with the speaker's own motion basis is not here: its coefficients are
 decorrelated already and it travels without a coding basis.
@@ -22,7 +22,7 @@ import numpy as np
 
 from facedeform.common.packaged import read_packaged
 
-SHA256 = "33eac32ec457f662fd567ec542cc25addd49ec9539d93cebda20548e3ec04018"
+SHA256 = "a35b6b842279dbd96142b6a541901e9ac7a4ac758ff5b4bb8000f38b350b694f"
 PATH = Path(__file__).with_name("layouts.json")
 
 

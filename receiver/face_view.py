@@ -15,10 +15,18 @@ from facedeform.codec.render.camera import Camera
 from facedeform.codec.render.eyelids import Eyelids
 from facedeform.codec.render.frame_video import HELD, VideoLayer
 from facedeform.codec.render.mouth_interior import LOWER_LIP, UPPER_LIP
-from facedeform.codec.render.picture import SceneMesh, face_texture, frame_placement, global_matrix
+from facedeform.codec.render.picture import (
+    SceneMesh,
+    body_shift,
+    face_texture,
+    frame_placement,
+    global_matrix,
+    moved_body,
+    warp_map,
+)
 from facedeform.codec.render.render import UNLIT, Renderer
 from facedeform.common.errors import BitstreamError, InputError
-from facedeform.common.parameters import EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, slots
+from facedeform.common.parameters import BODY_PARAMS, EXTENDED_PARAMS, GLOBAL_PARAMS, POSE_PARAMS, slots
 from facedeform.common.stages import View
 from facedeform.protocol.stream import Header
 
@@ -118,13 +126,18 @@ class FaceView:
 
 _POSE = slots(POSE_PARAMS)
 _GLOBAL = slots(GLOBAL_PARAMS)
+_BODY = slots(BODY_PARAMS)
+#: A frame's motion of the picture around the face: (the global motion's (2, 3) pixel map, the body's shift in
+#: pixels), each None for none.
+Motion = tuple[np.ndarray | None, np.ndarray | None]
+_STILL: Motion = (None, None)
 
 
 class PictureView(FaceView):
     """The whole picture: the reference picture, warped by the face deformed with the expression
     and placed by the head pose relative to the reference (codec/render/picture.py), at ``size`` (the
     picture and its projection scaled to it), the picture moved by the frame's global motion (the
-    camera's). Unlit: the picture's own light.
+    camera's) and its body by the body's own shift. Unlit: the picture's own light.
 
     The picture layer (:attr:`layer`, codec/render/frame_video.py) draws the real frame as a small video
     where the sender found it nearer the frame than this picture (a turned head's far side, a
@@ -147,7 +160,7 @@ class PictureView(FaceView):
             cv2.resize(picture.image, (w, h), interpolation=cv2.INTER_AREA if sx * sy < 1 else cv2.INTER_LINEAR)
         self._picture, self._picture_size, self._still = picture.image, (width, height), background
         self.picture_size = self._picture_size
-        self._moved: np.ndarray | None = None  # the global motion the renderer's background has
+        self._moved: Motion = _STILL  # the motion the renderer's background has
         self._renderer = Renderer(self._scene.triangles, size=size, material=UNLIT, lights=(), background=background,
                                   uv=self._scene.uv, texture=self._scene.texture, mouth_faces=self._scene.mouth_faces)
         self._camera = _picture_camera(size)
@@ -158,12 +171,12 @@ class PictureView(FaceView):
         self._lids = Eyelids(face, self._scene.rest_pixels, self._picture_size)
         self._shut: tuple[float, ...] = (0.0, 0.0)  # how far each eye is closed (codec/render/eyelids.py)
         self._open = 1.0  # how open the mouth is, against the person's open mouth (codec/render/mouth_interior.py)
-        #: (frame, scene vertex positions, global motion) of the last frames drawn: where the picture
+        #: (frame, scene vertex positions, motion) of the last frames drawn: where the picture
         #: layer's video frames were, to carry them (:meth:`carry`)
-        self._drawn: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(maxlen=HELD)
+        self._drawn: deque[tuple[int, np.ndarray, Motion]] = deque(maxlen=HELD)
         self._carrier: Renderer | None = None  # the scene textured by a video frame
         self._carried: tuple[np.ndarray, int] | None = None  # (the video frame it is textured by, its frame)
-        self._carried_motion: np.ndarray | None = None  # the carrier's background's motion
+        self._carried_motion: tuple[Motion, Motion] | None = None  # (then, now) of the carrier's background
         #: (video frame, its frame, the entry of the frame drawn last, the carried picture): the sender
         #: asks for the same one twice in a frame (to choose the blocks, then to draw)
         self._carry_last: tuple[np.ndarray, int, tuple, np.ndarray] | None = None
@@ -180,8 +193,8 @@ class PictureView(FaceView):
                       ) -> np.ndarray:
         """What :meth:`render` draws before the picture layer: the model's picture alone."""
         self._seq = self._seq + 1 if seq is None else seq
-        positions, still, deformed = self._placed(self._full(params), shape)
-        self._move_background(still)
+        positions, motion, deformed = self._placed(self._full(params), shape)
+        self._move_background(motion)
         shut = self._lids.weights(deformed)
         interior = self._scene.interior
         opening = 1.0 if interior is None else interior.ratio(positions[UPPER_LIP], positions[LOWER_LIP])
@@ -194,7 +207,7 @@ class PictureView(FaceView):
             self._open = opening
             self._patch(0, self._scene.mouth_row, interior.drawn(opening))
         self._positions = positions
-        self._drawn.append((self._seq, positions, still))
+        self._drawn.append((self._seq, positions, motion))
         return self._renderer.image(positions * self._scale, self._camera)
 
     def carry(self, video: np.ndarray, since: int) -> np.ndarray:
@@ -213,7 +226,7 @@ class PictureView(FaceView):
         self._carry_last = video, since, drawn, out
         return out
 
-    def _carry(self, video: np.ndarray, since: int, drawn: tuple[int, np.ndarray, np.ndarray | None]) -> np.ndarray:
+    def _carry(self, video: np.ndarray, since: int, drawn: tuple[int, np.ndarray, Motion]) -> np.ndarray:
         import cv2
 
         (pw, ph), (vw, vh) = self._picture_size, video.shape[1::-1]
@@ -233,11 +246,9 @@ class PictureView(FaceView):
             else:
                 carrier.retexture(uv, video)
             self._carrier, self._carried, self._carried_motion = carrier, (video, since), None
-        motion = _between(then_motion, now_motion, (vw / pw, vh / ph))
-        if self._carried_motion is None or not np.array_equal(motion, self._carried_motion):
-            self._carried_motion = motion
-            carrier.set_background(video if np.array_equal(motion, _IDENTITY) else cv2.warpAffine(
-                video, motion, (vw, vh), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+        if self._carried_motion is None or not _same((then_motion, now_motion), self._carried_motion):
+            self._carried_motion = then_motion, now_motion
+            carrier.set_background(self._moved_video(video, then_motion, now_motion))
         carried = carrier.image(now * scale, _picture_camera((vw, vh)))
         return cv2.resize(carried, self.size, interpolation=cv2.INTER_LINEAR)
 
@@ -253,10 +264,24 @@ class PictureView(FaceView):
         (x0, y0), (x1, y1) = lips.min(axis=0) - reach, lips.max(axis=0) + reach
         return float(x0), float(y0), float(x1), float(y1)
 
+    def _moved_video(self, video: np.ndarray, then: Motion, now: Motion) -> np.ndarray:
+        """The picture layer's ``video`` frame, which shows a frame whose motion was ``then``, moved as
+        the picture around the face moves to ``now``."""
+        import cv2
+
+        (pw, ph), (vw, vh) = self._picture_size, video.shape[1::-1]
+        zoom = (vw / pw, vh / ph)
+        if then[1] is None and now[1] is None:
+            motion = _between(then[0], now[0], zoom)
+            return video if np.array_equal(motion, _IDENTITY) else cv2.warpAffine(
+                video, motion, (vw, vh), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        maps = warp_map((vw, vh), zoom, self._scene.body, now, then)
+        return cv2.remap(video, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
     def _placed(self, full: np.ndarray, shape: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-        """(scene vertex positions in picture axes, the frame's global motion map or None, the pose-free
-        deformed face) for ``full`` (its expression drawn as ``shape`` if given)."""
+                ) -> tuple[np.ndarray, Motion, np.ndarray]:
+        """(scene vertex positions in picture axes, the frame's motion, the pose-free deformed face)
+        for ``full`` (its expression drawn as ``shape`` if given)."""
         pose = full[_POSE].copy()
         expression = full.copy()
         expression[_POSE] = 0.0
@@ -264,30 +289,46 @@ class PictureView(FaceView):
             else np.asarray(shape, dtype=np.float64)
         frame = frame_placement(self._scene.reference, pose, self._scene.pivot)
         still = global_matrix(full[_GLOBAL], self._scene.reference, self._picture_size)
-        return self._scene.positions(deformed, frame, still), still, deformed
+        shift = body_shift(full[_BODY], self._scene.reference)
+        return self._scene.positions(deformed, frame, still, shift), (still, shift), deformed
 
     def _patch(self, x: int, y: int, image: np.ndarray) -> None:
         self._renderer.patch_texture(x, y, image)
 
-    def _move_background(self, still: np.ndarray | None) -> None:
-        """The picture moved by ``still`` (a pixel map, None: the picture as it is, bit-exact) as the
-        renderer's background, warped once per change of the global motion."""
+    def _move_background(self, motion: Motion) -> None:
+        """The picture moved by ``motion`` (none: the picture as it is, bit-exact) as the renderer's
+        background, warped once per change of the motion."""
         import cv2
 
-        if (still is None and self._moved is None) or (
-                still is not None and self._moved is not None and np.array_equal(still, self._moved)):
+        if _same(motion, self._moved):
             return
-        self._moved = still
-        if still is None:
+        self._moved = motion
+        still, shift = motion
+        if still is None and shift is None:
             self._renderer.set_background(self._still)
             return
         w, h = self.size
-        scaled = np.diag([w / self._picture_size[0], h / self._picture_size[1]]) @ still
-        self._renderer.set_background(cv2.warpAffine(self._picture, scaled, (w, h), flags=cv2.INTER_LINEAR,
-                                                     borderMode=cv2.BORDER_REPLICATE))
+        zoom = (w / self._picture_size[0], h / self._picture_size[1])
+        if shift is None:
+            self._renderer.set_background(cv2.warpAffine(self._picture, np.diag(zoom) @ still, (w, h),
+                                                         flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+            return
+        if still is None:
+            self._renderer.set_background(moved_body(self._picture, self._still, zoom, self._scene.body, shift))
+            return
+        maps = warp_map((w, h), zoom, self._scene.body, motion)
+        self._renderer.set_background(cv2.remap(self._picture, *maps, cv2.INTER_LINEAR,
+                                                borderMode=cv2.BORDER_REPLICATE))
 
 
 _IDENTITY = np.eye(2, 3)
+
+
+def _same(a, b) -> bool:
+    """Whether two motions (or tuples of them) are the same: None only equals None."""
+    if isinstance(a, tuple):
+        return isinstance(b, tuple) and len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    return a is b if a is None or b is None else np.array_equal(a, b)
 
 
 def _between(then: np.ndarray | None, now: np.ndarray | None, zoom: tuple[float, float]) -> np.ndarray:

@@ -7,7 +7,7 @@ landmarks before the fit or to the parameters after it (``Smoothing.stage``).
 With a face model that has a reference picture, the head pose is measured
 against that picture instead of the rest frame, translation and scale included
 (codec/render/picture.py), whatever the layout, and the whole frame's motion against
-it comes last (GLOBAL_PARAMS, sender/motion_global.py).
+it and the body's comes last (GLOBAL_PARAMS, BODY_PARAMS, sender/motion_global.py).
 """
 
 from collections.abc import Iterable, Iterator
@@ -21,7 +21,7 @@ from facedeform.codec.model.head_pose import head_pivot, image_to_face_axes
 from facedeform.codec.model.regions import DEFAULT_RULE
 from facedeform.codec.render.picture import VIEW_DISTANCE, Placement, relative_pose
 from facedeform.common.errors import InputError, NoFaceError
-from facedeform.common.parameters import GLOBAL_PARAMS, LAYOUTS, LID_PARAMS, PAPER_PARAMS, POSE_PARAMS
+from facedeform.common.parameters import BODY_PARAMS, GLOBAL_PARAMS, LAYOUTS, LID_PARAMS, PAPER_PARAMS, POSE_PARAMS
 from facedeform.common.stages import Tracker
 from facedeform.protocol.quantise import VECTOR_STEP, steps_for
 from facedeform.sender.calibrate import RestFace, choose_rest, fapu_ratios
@@ -58,13 +58,16 @@ def layout_names(layout: str, face: BaseFace) -> tuple[str, ...]:
     return paper + face.motion.names + LID_PARAMS + POSE_PARAMS[:3]
 
 
-def picture_names(names: tuple[str, ...], face: BaseFace, moving: bool = True) -> tuple[str, ...]:
+def picture_names(names: tuple[str, ...], face: BaseFace, moving: bool = True, body: bool = False
+                  ) -> tuple[str, ...]:
     """``names`` with, when ``face`` has a reference picture, the head's translation and scale (the
-    receiver places the head in it) and, if ``moving`` (the picture has a background to measure
-    it on), the whole frame's motion against it, last."""
+    receiver places the head in it), if ``moving`` (the picture has a background to measure
+    it on) the whole frame's motion against it, and if ``body`` (it has a body to measure on) the
+    body's own shift, last."""
     if face.picture is None:
         return names
-    return names + (() if "tx" in names else POSE_PARAMS[3:]) + (GLOBAL_PARAMS if moving else ())
+    return names + (() if "tx" in names else POSE_PARAMS[3:]) + (GLOBAL_PARAMS if moving else ()) + (
+        BODY_PARAMS if body else ())
 
 
 @dataclass(frozen=True)
@@ -128,9 +131,10 @@ class FaceAnalyser:
         self._calibration_frames = max(1, calibration_frames)
         self._neutral = neutral
         self._global = None if face.picture is None else GlobalMotion(face.picture, self._base)
-        if self._global is not None and not self._global.usable:
+        if self._global is not None and not (self._global.usable or self._global.body):
             self._global = None
-        self.names = picture_names(layout_names(layout, face), face, self._global is not None)
+        moving, body = (False, False) if self._global is None else (self._global.usable, self._global.body)
+        self.names = picture_names(layout_names(layout, face), face, moving, body)
         self._picture = None if face.picture is None else Placement.from_matrix(face.picture.projection)
         self._picture_width = 0 if face.picture is None else face.picture.image.shape[1]
         self._factor = 1.0  # the picture's width over the frames'
@@ -216,7 +220,7 @@ class FaceAnalyser:
     def _params(self, pose: Pose | None, aligned: np.ndarray | None, still: np.ndarray,
                 previous: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """(k,) parameters and the (468, 3) unsmoothed target they were fitted to (None without a
-        face); ``still``: the frame's global motion (empty without a reference picture), which
+        face); ``still``: the frame's global and body motion (empty without a reference picture), which
         comes last and is measured with or without a face."""
         filters = (self._landmark_filter, self._pose_filter, self._param_filter)
         if aligned is None or pose is None:

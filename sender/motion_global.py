@@ -1,4 +1,4 @@
-"""The whole frame's motion against the reference picture: camera pan, zoom and roll.
+"""The whole frame's motion against the reference picture: camera pan, zoom and roll, and the body's shift.
 
 The receiver draws the still reference picture around the moving face; when
 the camera moves, the background and the body move with it, and a picture held
@@ -6,7 +6,10 @@ still is wrong everywhere. Per frame, corners of the
 reference picture outside the face are followed into the frame by pyramidal
 Lucas-Kanade flow (starting from the last frame's motion, checked backwards),
 and a similarity is fitted to them with RANSAC: four numbers per frame
-(codec/render/picture.global_matrix), sent as GLOBAL_PARAMS.
+(codec/render/picture.global_matrix), sent as GLOBAL_PARAMS. The body below the chin (shoulders,
+torso) moves on its own when the person leans or shifts in the chair: corners there are followed
+the same way, and what the camera's motion leaves of their shift is the body's (two numbers,
+BODY_PARAMS, codec/render/picture.BodyRegion).
 
 At enrolment, :class:`RingWeights` measures how far the picture around the
 face (hair, neck, shoulders, the wall) follows the head, for the receiver's
@@ -19,7 +22,15 @@ import numpy as np
 
 from facedeform.codec.model.face_model import BaseFace, ReferencePicture
 from facedeform.codec.model.head_pose import image_to_face_axes
-from facedeform.codec.render.picture import Placement, SceneMesh, global_motion
+from facedeform.codec.render.picture import (
+    BodyRegion,
+    Placement,
+    SceneMesh,
+    body_motion,
+    body_shift,
+    global_matrix,
+    global_motion,
+)
 from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose
 
 #: The face's landmark hull grown by this factor about its centre, and everything below the chin
@@ -48,6 +59,13 @@ STILL_PIXELS = 2.0
 #: flow, the sender's largest cost there, took 6.2 ms a frame at full size and 2.3 at half; the
 #: bundled clip scaled to 1080p came out at 27.68 dB instead of 27.26 (worst frame 21.3, was 20.2).
 WORK_SIDE = 960
+#: Corners on the body (where it moves fully, codec/render/picture.BodyRegion) needed to measure it; a
+#: picture with fewer (a plain shirt) carries no body motion, a frame with fewer keeps the last.
+BODY_POINTS = 12
+#: A body shift (the median of its points', picture pixels) is kept until it changes by this much: the
+#: points' jitter on a still body would otherwise cost bits every frame.
+BODY_STILL = 0.75
+BODY_AGREE = 1.5  # picture pixels from the median within which a body point agrees
 _IDENTITY = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
@@ -59,21 +77,29 @@ def _flow(before: np.ndarray, after: np.ndarray, start: np.ndarray, guess: np.nd
     return np.asarray(found), np.asarray(ok).ravel() == 1
 
 
-def face_mask(points: np.ndarray, size: tuple[int, int], grow: float = FACE_GROW) -> np.ndarray:
+def face_mask(points: np.ndarray, size: tuple[int, int], grow: float = FACE_GROW, below: bool = True) -> np.ndarray:
     """(H, W) uint8: 255 outside the convex hull of (n, 2) pixel ``points`` grown ``grow`` times about
-    its centre and above the lowest point (y down: the chin)."""
+    its centre and, if ``below``, above the lowest point (y down: the chin)."""
     width, height = size
     centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
     grown = centre + grow * (points - centre)
     mask = np.full((height, width), 255, np.uint8)
     cv2.fillConvexPoly(mask, cv2.convexHull(np.round(grown).astype(np.int32)), 0)
-    mask[max(0, int(np.ceil(points[:, 1].max()))):] = 0
+    if below:
+        mask[max(0, int(np.ceil(points[:, 1].max()))):] = 0
     return mask
 
 
+def _corners(gray: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(n, 1, 2) float32 corners of ``gray`` to follow, where ``mask`` is set."""
+    found = cv2.goodFeaturesToTrack(gray, CORNERS, 0.01, 5, mask=mask)
+    return np.zeros((0, 1, 2), np.float32) if found is None else found.astype(np.float32)
+
+
 class GlobalMotion:
-    """Measures (gx, gy, gs, gr) of each frame against ``picture``; ``vertices`` are the face model's,
-    which the picture's projection places (to leave the face out of the reference's points)."""
+    """Measures (gx, gy, gs, gr) of each frame against ``picture`` (where :attr:`usable`), then
+    (bx, by), the body's shift (where :attr:`body`); ``vertices`` are the face model's, which the
+    picture's projection places (to leave the face out of the reference's points)."""
 
     def __init__(self, picture: ReferencePicture, vertices: np.ndarray) -> None:
         self.reference = Placement.from_matrix(picture.projection)
@@ -83,25 +109,40 @@ class GlobalMotion:
         self._work = (round(width / self._shrink), round(height / self._shrink))
         self._gray = self._grey(cv2.cvtColor(picture.image, cv2.COLOR_RGB2GRAY))
         face = self.reference.apply(vertices)[:, :2] * [1.0, -1.0] / self._shrink
-        found = cv2.goodFeaturesToTrack(self._gray, CORNERS, 0.01, 5, mask=face_mask(face, self._work))
-        self._points = np.zeros((0, 1, 2), np.float32) if found is None else found.astype(np.float32)
+        self._points = _corners(self._gray, face_mask(face, self._work))
         self._matrix = _IDENTITY  # working pixels of the picture -> of the frame
+        self._region = BodyRegion.of(self.reference, vertices)
+        on_body = self._region.weight((np.arange(self._work[1]) + 0.5) * self._shrink) >= 1.0
+        body = np.where(on_body[:, None], 255, 0).astype(np.uint8) * np.ones((1, self._work[0]), np.uint8)
+        self._body_points = _corners(self._gray, body)
+        self._shift = np.zeros(2)  # the body's, working pixels
 
     @property
     def usable(self) -> bool:
         """Whether the picture has corners enough outside the face to measure its motion on."""
         return len(self._points) >= MIN_POINTS
 
+    @property
+    def body(self) -> bool:
+        """Whether the picture has corners enough on the body to measure the body's motion on."""
+        return len(self._body_points) >= BODY_POINTS
+
     def measure(self, frame: np.ndarray, landmarks: np.ndarray | None) -> np.ndarray:
-        """(4,) the global motion of BGR ``frame`` (scaled to the picture's size) whose tracked
-        landmarks (pixels, None without a face) are given; the last frame's when too few points agree."""
+        """The global motion (4,) of BGR ``frame`` (scaled to the picture's size) whose tracked
+        landmarks (pixels, None without a face) are given, where :attr:`usable`, then the body's (2,)
+        where :attr:`body`; the last frame's when too few points agree."""
         gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
         factor = self._work[0] / gray.shape[1]
+        work = self._grey(gray)
+        face = None if landmarks is None else np.asarray(landmarks)[:, :2] * factor
         if self.usable:
-            self._follow(self._grey(gray), None if landmarks is None else np.asarray(landmarks)[:, :2] * factor)
+            self._follow(work, face)
+        if self.body:
+            self._follow_body(work, face)
         matrix = self._matrix.copy()
         matrix[:, 2] *= self._shrink  # in the picture's pixels
-        return global_motion(matrix, self.reference, self.size)
+        return np.concatenate([global_motion(matrix, self.reference, self.size) if self.usable else [],
+                               body_motion(self._shift * self._shrink, self.reference) if self.body else []])
 
     def _grey(self, gray: np.ndarray) -> np.ndarray:
         """``gray`` at the working size."""
@@ -127,6 +168,36 @@ class GlobalMotion:
         moved = np.median(np.linalg.norm(agree @ matrix[:, :2].T + matrix[:, 2] - agree, axis=1))
         self._matrix = _IDENTITY if moved < STILL_PIXELS / self._shrink else matrix
 
+    def _follow_body(self, gray: np.ndarray, face: np.ndarray | None) -> None:
+        """The body's shift: where its corners went, less the camera's motion, as a shift before it.
+        Followed from the last frame's shift and from none, whichever more points agree on: a body
+        that left the picture's edge and came back is found again."""
+        best: np.ndarray | None = None
+        for guess in {tuple(self._shift), (0.0, 0.0)}:
+            shifts = self._body_shifts(gray, face, np.array(guess))
+            if len(shifts) < BODY_POINTS:
+                continue
+            middle = np.median(shifts, axis=0)
+            agree = shifts[np.linalg.norm(shifts - middle, axis=1) < BODY_AGREE / self._shrink]
+            if len(agree) >= BODY_POINTS and (best is None or len(agree) > len(best)):
+                best = agree
+        if best is not None and np.linalg.norm(best.mean(axis=0) - self._shift) >= BODY_STILL / self._shrink:
+            self._shift = best.mean(axis=0)
+
+    def _body_shifts(self, gray: np.ndarray, face: np.ndarray | None, shift: np.ndarray) -> np.ndarray:
+        """(n, 2) shifts before the camera's motion of the body's corners that flow there and back from
+        where ``shift`` would put them, outside the face (which may hide the body)."""
+        start, linear, offset = self._body_points, self._matrix[:, :2], self._matrix[:, 2]
+        found, ok = _flow(self._gray, gray, start, ((start + shift) @ linear.T + offset).astype(np.float32))
+        back, ok_back = _flow(gray, self._gray, found, start)
+        keep = ok & ok_back & (np.linalg.norm((back - start)[:, 0], axis=1) < ROUND_TRIP / self._shrink)
+        if face is not None:
+            width, height = self._work
+            keep &= face_mask(face, self._work, 1.2, below=False)[
+                np.clip(np.round(found[:, 0, 1]).astype(int), 0, height - 1),
+                np.clip(np.round(found[:, 0, 0]).astype(int), 0, width - 1)] > 0
+        return (found[keep, 0] - offset) @ np.linalg.inv(linear).T - start[keep, 0]
+
 
 #: How much head motion (squared face heights, summed over frames) a ring vertex needs before its
 #: own measured weight counts as much as the default fall-off (codec/render/picture.RINGS): about 100 frames
@@ -140,12 +211,13 @@ SPREAD = 3
 class RingWeights:
     """How far each ring vertex of the face's scene mesh (codec/render/picture.SceneMesh) follows the head,
     measured frame by frame (:meth:`add`, so one pass over the enrolment clip serves this and the
-    motion basis) and read by :meth:`weights`: for each vertex the least-squares factor between
-    where the picture's content at the vertex went (Lucas-Kanade flow from the picture, checked
-    backwards) and where a vertex moving fully with the head would go, in 0..1, averaged along the
-    ring weighted by the head motion seen and drawn toward the default fall-off where little was
-    seen; the outermost ring stays put (0). Hair that swings with the head comes out near 1, a wall
-    behind it near 0."""
+    motion basis) and read by :meth:`weights`: for each vertex the least-squares factor, as the
+    receiver draws it, between where the picture's content at the vertex went (Lucas-Kanade flow
+    from the picture, checked backwards) and where a vertex moving fully with the head would go,
+    each counted from where the background under it went (the camera's and the body's motion,
+    :class:`GlobalMotion`), in 0..1, averaged along the ring weighted by the head motion seen and
+    drawn toward the default fall-off where little was seen; the outermost ring stays put (0). Hair
+    that swings with the head comes out near 1, a wall behind it and a shoulder near 0."""
 
     def __init__(self, face: BaseFace) -> None:
         picture = face.picture
@@ -158,23 +230,34 @@ class RingWeights:
         # a vertex past the picture's edge draws the edge (repeated): measure there
         self._probe = np.clip(self._rest, 4, [width - 5, height - 5]).astype(np.float32)
         self._vertices = np.asarray(face.vertices, dtype=np.float64)
+        self._motion = GlobalMotion(picture, self._vertices)
         self._agree, self._seen = np.zeros(len(self._rest)), np.zeros(len(self._rest))
 
     def add(self, frame: np.ndarray, landmarks: np.ndarray | None) -> None:
         """One BGR ``frame`` of the picture's size and its tracked landmarks (pixels; None without a face)."""
+        motion = self._motion.measure(frame, landmarks)
         if landmarks is None:
             return
         stable = list(STABLE_LANDMARKS)
         placement = fit_pose(image_to_face_axes(landmarks)[stable], self._vertices[stable]).placement()
-        head = self._scene.ring_pixels(placement) - self._rest
+        background = self._background(motion) - self._rest
+        head = self._scene.ring_pixels(placement) - self._rest - background
         gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
         start = self._probe[:, None].copy()
-        guess = (self._probe + 0.5 * head)[:, None].astype(np.float32)
+        guess = (self._probe + background + 0.5 * head)[:, None].astype(np.float32)
         found, ok = _flow(self._reference, gray, start, guess)
         back, ok_back = _flow(gray, self._reference, found, start)
         good = ok & ok_back & (np.linalg.norm((back - start)[:, 0], axis=1) < 2 * ROUND_TRIP)
-        self._agree += np.where(good, ((found - start)[:, 0] * head).sum(axis=1), 0.0)
+        self._agree += np.where(good, (((found - start)[:, 0] - background) * head).sum(axis=1), 0.0)
         self._seen += np.where(good, (head * head).sum(axis=1), 0.0)
+
+    def _background(self, motion: np.ndarray) -> np.ndarray:
+        """(rings x boundary, 2) pixels where the background under each ring vertex went by ``motion``
+        (:meth:`GlobalMotion.measure`'s)."""
+        reference, size, parts = self._motion.reference, self._motion.size, list(motion)
+        still = global_matrix(np.array(parts[:4]), reference, size) if self._motion.usable else None
+        shift = body_shift(np.array(parts[-2:]), reference) if self._motion.body else None
+        return self._scene.anchor_pixels(still, shift)
 
     def weights(self) -> np.ndarray:
         """(rings x boundary,) the weights of the frames added so far."""

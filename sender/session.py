@@ -13,7 +13,7 @@ from facedeform.codec.model.regions import DEFAULT_RULE
 from facedeform.common.errors import InputError
 from facedeform.common.limits import MAX_SIDE
 from facedeform.common.npz import NpzAppender
-from facedeform.common.parameters import BASIS_PARAMS, GLOBAL_PARAMS, POSE_PARAMS
+from facedeform.common.parameters import BASIS_PARAMS, BODY_PARAMS, GLOBAL_PARAMS, POSE_PARAMS
 from facedeform.common.stages import Source
 from facedeform.protocol.basis import principal_basis
 from facedeform.protocol.layouts import shipped_basis
@@ -67,7 +67,8 @@ def sample_basis(names: tuple[str, ...], sample: list[np.ndarray]) -> np.ndarray
     depend on the level."""
     if any(n in BASIS_PARAMS for n in names):
         return None
-    return principal_basis(np.array(sample), steps_for(names), [n in POSE_PARAMS + GLOBAL_PARAMS for n in names])
+    return principal_basis(np.array(sample), steps_for(names),
+                           [n in POSE_PARAMS + GLOBAL_PARAMS + BODY_PARAMS for n in names])
 
 
 def first_second(fps: float) -> int:

@@ -16,6 +16,7 @@ from facedeform.codec.model.regions import project_weights
 from facedeform.codec.model.upper_face import gaze_direction
 from facedeform.common.parameters import (
     BASIS_PARAMS,
+    BODY_PARAMS,
     EXTENDED_PARAMS,
     GLOBAL_PARAMS,
     MOUTH_PARAMS,
@@ -49,9 +50,9 @@ def params(**named) -> np.ndarray:
 
 def test_layout():
     assert EXTENDED_PARAMS[:13] == PAPER_PARAMS
-    assert len(set(EXTENDED_PARAMS)) == N == 29 + len(MOUTH_PARAMS) + len(BASIS_PARAMS) + len(GLOBAL_PARAMS)
+    assert len(set(EXTENDED_PARAMS)) == N == 29 + len(MOUTH_PARAMS + BASIS_PARAMS + GLOBAL_PARAMS + BODY_PARAMS)
     # appended: older layouts keep their slots
-    assert EXTENDED_PARAMS[29:] == MOUTH_PARAMS + BASIS_PARAMS + GLOBAL_PARAMS
+    assert EXTENDED_PARAMS[29:] == MOUTH_PARAMS + BASIS_PARAMS + GLOBAL_PARAMS + BODY_PARAMS
     assert EXTENDED_PARAMS[13:29] == UPPER_PARAMS + ("gaze_yaw", "gaze_pitch", "rx", "ry", "rz", "tx", "ty", "tz")
 
 

@@ -16,6 +16,7 @@ from facedeform.codec.model.motion_basis import MotionBasis, learn_basis
 from facedeform.common.errors import InputError
 from facedeform.common.parameters import (
     BASIS_PARAMS,
+    BODY_PARAMS,
     EXTENDED_PARAMS,
     GLOBAL_PARAMS,
     LID_PARAMS,
@@ -161,7 +162,8 @@ def test_enrol_then_send_the_personal_layout_end_to_end(tmp_path, over):
     paper = PAPER_PARAMS if over == "paper" else ()
     # and where the head is in the picture, and how the picture moves if it has a background to show it
     expected = paper + BASIS_PARAMS[:4] + LID_PARAMS + POSE_PARAMS
-    assert tuple(recv["names"]) in (expected, expected + GLOBAL_PARAMS)
+    extras = ((), GLOBAL_PARAMS, BODY_PARAMS, GLOBAL_PARAMS + BODY_PARAMS)
+    assert tuple(recv["names"]) in (expected + extra for extra in extras)
     cols = slice(len(paper), len(paper) + 4)
     coeffs = recv["params"][:, cols]
     assert np.abs(coeffs).max() > 0.002  # the basis is used, frame by frame

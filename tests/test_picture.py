@@ -14,20 +14,23 @@ from facedeform.codec.model.head_pose import head_pivot
 from facedeform.codec.render.camera import Camera
 from facedeform.codec.render.picture import (
     RINGS,
+    BodyRegion,
     Placement,
     SceneMesh,
+    body_shift,
     frame_placement,
     global_matrix,
     global_motion,
     outer_loop,
     relative_pose,
+    warp_map,
 )
 from facedeform.codec.render.render import Renderer
 from facedeform.common.errors import InputError
-from facedeform.common.parameters import EXTENDED_PARAMS, GLOBAL_PARAMS, slots
+from facedeform.common.parameters import BODY_PARAMS, EXTENDED_PARAMS, GLOBAL_PARAMS, slots
 from facedeform.protocol.stream import Header, steps_for
 from facedeform.receiver.face_view import FaceView, PictureView, default_look, open_view
-from facedeform.sender.motion_global import GlobalMotion, RingWeights
+from facedeform.sender.motion_global import GlobalMotion, RingWeights, face_mask
 from facedeform.sender.texture import texture_from_frame
 from facedeform.sender.tracker import FaceTracker
 from tests.support import ROOT
@@ -376,6 +379,40 @@ def test_the_picture_moves_by_the_global_motion_and_stays_bit_exact_without():
     assert np.abs(half.astype(int) - small.astype(int))[:, :4].mean() < 4  # scaled with the output
 
 
+def test_the_body_moves_by_its_own_shift_below_the_chin_only():
+    face = a_face_with_a_picture()
+    names = GLOBAL_NAMES + BODY_PARAMS
+    view = PictureView(header(face, names), face, (200, 160))
+    rest = PictureView(header(face), face, (200, 160)).render(np.zeros(len(NAMES)))
+    np.testing.assert_array_equal(view.render(np.zeros(len(names))), rest)
+    moved = view.render(np.r_[np.zeros(len(GLOBAL_NAMES)), 0.1, 0.05])  # 6 pixels right, 3 up
+    body = BodyRegion.of(Placement.from_matrix(face.picture.projection), face.vertices)
+    chin, low = int(body.chin), int(np.ceil(body.chin + body.ramp)) + 3
+    shifted = cv2.warpAffine(face.picture.image, np.float64([[1, 0, 6], [0, 1, -3]]), (200, 160),
+                             flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    # past the rings, on the left: above the chin the picture as it was, on the body the picture shifted
+    np.testing.assert_array_equal(moved[:chin - 5, :4], rest[:chin - 5, :4])  # (its warp is computed coarse)
+    np.testing.assert_array_equal(moved[low:-1, :4], shifted[low:-1, :4])  # (the last row: the border, rounded apart)
+    np.testing.assert_array_equal(view.render(np.zeros(len(names))), rest)  # and back, exactly
+
+
+def test_the_warp_map_is_the_exact_inverse_of_the_motion():
+    """The map cv2.remap reads, computed coarse and scaled up: the inverse of the camera's motion at
+    every pixel (to 1e-3 pixels), and of the body's shift where the body moves fully."""
+    c, s = 1.02 * np.cos(0.05), 1.02 * np.sin(0.05)
+    still = np.array([[c, s, 3.3], [-s, c, -2.1]])
+    body = BodyRegion(150.0, 30.0)
+    for size, zoom in (((256, 256), (1.0, 1.0)), ((250, 190), (0.75, 0.74))):
+        y, x = np.mgrid[0:size[1], 0:size[0]]
+        exact = (np.stack([x / zoom[0], y / zoom[1]], -1) - still[:, 2]) @ np.linalg.inv(still[:, :2]).T
+        maps = np.stack(warp_map(size, zoom, body, (still, None)), -1)
+        assert np.abs(maps - exact).max() < 1e-3
+        maps = np.stack(warp_map(size, zoom, body, (still, np.array([4.0, -3.0]))), -1)
+        full = exact[..., 1] > 190  # rows fully on the body
+        np.testing.assert_allclose(maps[full] + [4.0, -3.0], exact[full], atol=1e-3)
+        np.testing.assert_allclose(maps[exact[..., 1] < 145], exact[exact[..., 1] < 145], atol=1e-3)
+
+
 def a_textured_scene(size=256, seed=4):
     """A face model placed in the middle of a picture of random blobs (corners everywhere)."""
     rng = np.random.default_rng(seed)
@@ -398,11 +435,11 @@ def test_the_sender_measures_a_known_global_motion():
     reference = measure.reference
     landmarks = landmarks_of(face, reference)
     bgr = cv2.cvtColor(face.picture.image, cv2.COLOR_RGB2BGR)
-    np.testing.assert_array_equal(measure.measure(bgr, landmarks), np.zeros(4))  # still: exactly zero
+    np.testing.assert_array_equal(measure.measure(bgr, landmarks), np.zeros(6))  # still: exactly zero
     for motion in ([0.06, -0.04, 0.0, 0.0], [0.02, 0.03, 0.04, 1.5], [-0.1, 0.05, -0.05, -3.0]):
         matrix = global_matrix(np.array(motion), reference, (256, 256))
         frame = cv2.warpAffine(bgr, matrix, (256, 256), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-        got = measure.measure(frame, landmarks)
+        got = measure.measure(frame, landmarks)[:4]
         # within a quarter of a pixel at the picture's corners (shift in face heights of 77 pixels)
         corners = np.array([[0, 0], [255, 0], [0, 255], [255, 255]], float)
         back = global_matrix(got, reference, (256, 256))
@@ -410,12 +447,13 @@ def test_the_sender_measures_a_known_global_motion():
         assert error.max() < 0.25, (motion, got)
     # a frame of another size is measured as if scaled to the picture's
     big = cv2.resize(frame, (512, 512), interpolation=cv2.INTER_LINEAR)
-    np.testing.assert_allclose(measure.measure(big, landmarks * 2), got, atol=0.01)
+    np.testing.assert_allclose(measure.measure(big, landmarks * 2)[:4], got, atol=0.01)
 
 
 def test_shoulders_that_move_on_a_plain_wall_are_not_a_moving_camera():
     """The bundled clip's case: a plain wall, and corners only on the speaker's shoulders (beside
-    and below the face): they move with the person, so the camera stays still."""
+    and below the face): they move with the person, so the camera stays still, and the body's own
+    shift is measured instead."""
     size = 256
     image = np.full((size, size, 3), 120, np.uint8)
     rng = np.random.default_rng(5)
@@ -429,7 +467,10 @@ def test_shoulders_that_move_on_a_plain_wall_are_not_a_moving_camera():
     bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
     body = np.float32([[1, 0, 4], [0, 1, -3]])  # the body shifts, the wall stays
     moved = cv2.warpAffine(bgr, body, (size, size), borderMode=cv2.BORDER_REPLICATE)
-    np.testing.assert_array_equal(measure.measure(moved, landmarks), np.zeros(4))
+    assert not measure.usable and measure.body
+    np.testing.assert_array_equal(measure.measure(bgr, landmarks), np.zeros(2))
+    shift = body_shift(measure.measure(moved, landmarks), measure.reference)
+    np.testing.assert_allclose(shift, [4, -3], atol=0.1)
 
 
 def test_a_large_picture_is_followed_at_a_fraction_of_its_size():
@@ -440,10 +481,10 @@ def test_a_large_picture_is_followed_at_a_fraction_of_its_size():
     measure = GlobalMotion(face.picture, face.vertices)
     landmarks = landmarks_of(face, measure.reference)
     bgr = cv2.cvtColor(face.picture.image, cv2.COLOR_RGB2BGR)
-    np.testing.assert_array_equal(measure.measure(bgr, landmarks), np.zeros(4))
+    np.testing.assert_array_equal(measure.measure(bgr, landmarks), np.zeros(6))
     matrix = global_matrix(np.array([0.03, -0.02, 0.01, 0.5]), measure.reference, (size, size))
     frame = cv2.warpAffine(bgr, matrix, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-    back = global_matrix(measure.measure(frame, landmarks), measure.reference, (size, size))
+    back = global_matrix(measure.measure(frame, landmarks)[:4], measure.reference, (size, size))
     corners = np.array([[0, 0], [size - 1, 0], [0, size - 1], [size - 1, size - 1]], float)
     error = np.abs(corners @ back[:, :2].T + back[:, 2] - (corners @ matrix[:, :2].T + matrix[:, 2]))
     assert error.max() < 0.5
@@ -458,22 +499,26 @@ def test_a_plain_background_carries_no_global_motion():
     assert not GlobalMotion(plain, face.vertices).usable
     assert picture_names(("theta",), face)[-4:] == GLOBAL_PARAMS
     assert picture_names(("theta",), face, moving=False) == ("theta", "tx", "ty", "tz")
+    assert picture_names(("theta",), face, moving=False, body=True) == ("theta", "tx", "ty", "tz") + BODY_PARAMS
 
 
 def test_ring_weights_follow_what_moves_with_the_head():
-    """Frames where the whole picture moves with the head (hair everywhere) give weights near 1; frames
-    where only the face moves (a wall) near 0; the outermost ring stays put either way."""
+    """Frames where the picture around the face moves with the head (hair) give weights near 1 there;
+    frames where only the face moves (a wall) near 0; the outermost ring stays put either way. The
+    picture far from the face stays still (a camera that moved everything would be the camera's
+    motion, which the weights count from)."""
     face = a_textured_scene()
     reference = Placement.from_matrix(face.picture.projection)
     bgr = cv2.cvtColor(face.picture.image, cv2.COLOR_RGB2BGR)
     shifts = [np.array([dx, dy]) for dx, dy in ((6, 0), (-6, 2), (0, -6), (4, 4), (-4, -5))] * 30
+    near = face_mask(landmarks_of(face, reference)[:, :2], (256, 256), below=False)[..., None] == 0
 
     def frames(moving):
         for shift in shifts:
             placed = Placement(reference.scale, reference.rotation, reference.shift + [shift[0], -shift[1], 0.0])
-            frame = cv2.warpAffine(bgr, np.float64([[1, 0, shift[0]], [0, 1, shift[1]]]), (256, 256),
-                                   borderMode=cv2.BORDER_REFLECT) if moving else bgr
-            yield frame, landmarks_of(face, placed)
+            moved = cv2.warpAffine(bgr, np.float64([[1, 0, shift[0]], [0, 1, shift[1]]]), (256, 256),
+                                   borderMode=cv2.BORDER_REFLECT)
+            yield np.where(near, moved, bgr) if moving else bgr, landmarks_of(face, placed)
 
     def weights(moving):
         measured = RingWeights(face)
@@ -484,4 +529,4 @@ def test_ring_weights_follow_what_moves_with_the_head():
     hair, wall = weights(True), weights(False)
     np.testing.assert_array_equal(hair[-1], 0.0)
     np.testing.assert_array_equal(wall[-1], 0.0)
-    assert hair[:-1].mean() > 0.9 and wall[:-1].mean() < 0.1
+    assert hair[0].mean() > 0.9 and wall[:-1].mean() < 0.1

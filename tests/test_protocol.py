@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from facedeform.common.errors import BitstreamError, FdError
 from facedeform.common.limits import MAX_SIDE
+from facedeform.common.parameters import LAYOUTS as NAMED
 from facedeform.common.parameters import PAPER_PARAMS
 from facedeform.protocol.basis import SCALE
 from facedeform.protocol.framing import END, HEADER, SYNC, Delta, build, varint
@@ -486,7 +487,8 @@ def header_bytes_with(h: Header, at: int, value: bytes, length: int = 1) -> byte
     (lambda h: header_bytes_with(h, 7, b"\x02"), "unknown deformation rule 2"),
     (lambda h: header_bytes_with(h, 3, b"\x20"), "unknown header flags"),
     (lambda h: header_bytes_with(h, 3, b"\x14"), "unknown header flags"),  # a held layout's basis written too
-    (lambda h: header_bytes_with(h, 3, b"\x10"), "layout 13, which this decoder does not hold"),  # 13 names
+    (lambda h: header_bytes_with(header(NAMED["mouth"]), 3, b"\x10"),  # its count of 39 names read as an index
+     "layout 39, which this decoder does not hold"),
     (lambda h: header_bytes_with(h, 8 + len(varint(25000)), b"\x81\x80\x01"), "over its limit"),  # width 16385
     (lambda h: header_bytes_with(CUSTOM, len(encode_header(CUSTOM)) - 8, np.float64(1e306).byteswap().tobytes(), 8),
      "quantiser steps"),

@@ -35,6 +35,11 @@ RING_DEPTH = 0.5
 #: fall-off starts at the face (neck and shoulders do not turn with it).
 HAIR_START = 1.3
 MOUTH_GAP = 4  # rows between the pictures and the open mouth below them in the texture
+#: The body (the picture below the chin, across its width: neck, shoulders, torso) moves by its own
+#: shift (BODY_PARAMS), fully from BODY_START face heights below the chin in the reference picture,
+#: rising smoothly (a smoothstep) from the chin; above the chin it does not move at all.
+BODY_START = 0.1
+BODY_GRID = 4  # pixels per point of the body's warp, which is smooth: computed coarse, scaled up
 _FLIP = np.array([1.0, -1.0, 1.0])  # picture axes <-> (pixel x, pixel y down, depth)
 
 
@@ -119,6 +124,101 @@ def global_motion(matrix: np.ndarray, reference: Placement, size: tuple[int, int
                      np.degrees(np.arctan2(m[0, 1], m[0, 0]))])
 
 
+@dataclass(frozen=True)
+class BodyRegion:
+    """Where the body moves with its own shift: a weight by picture row (y down, the reference
+    picture's pixels), 0 above ``chin``, 1 from ``chin + ramp`` down."""
+
+    chin: float
+    ramp: float
+
+    @classmethod
+    def of(cls, reference: Placement, vertices: np.ndarray) -> BodyRegion:
+        """The body region below the face ``vertices`` (model space) as ``reference`` places them."""
+        return cls(float(-reference.apply(vertices)[:, 1].min()), BODY_START * reference.scale)
+
+    def weight(self, y: np.ndarray) -> np.ndarray:
+        """How far points at rows ``y`` (any shape) move with the body: 0..1."""
+        t = np.clip((np.asarray(y, dtype=np.float64) - self.chin) / self.ramp, 0.0, 1.0)
+        return t * t * (3.0 - 2.0 * t)
+
+    def moved(self, pixels: np.ndarray, shift: np.ndarray | None) -> np.ndarray:
+        """(n, 2) reference-picture ``pixels`` moved by the body's ``shift`` (pixels; None: none)."""
+        if shift is None:
+            return pixels
+        return pixels + self.weight(pixels[:, 1])[:, None] * shift
+
+
+def body_shift(motion: np.ndarray, reference: Placement) -> np.ndarray | None:
+    """(2,) pixels (x right, y down) of the body motion ``motion`` = (bx, by) face heights of the
+    reference (y up); None for none, so that a still body leaves the picture bit-exact."""
+    bx, by = (float(v) for v in motion)
+    if bx == by == 0.0:
+        return None
+    return reference.scale * np.array([bx, -by])
+
+
+def body_motion(shift: np.ndarray, reference: Placement) -> np.ndarray:
+    """(2,) bx, by of a body ``shift`` in pixels: :func:`body_shift`'s inverse."""
+    return np.array([shift[0], -shift[1]]) / reference.scale
+
+
+def moved_body(picture: np.ndarray, still_picture: np.ndarray, zoom: tuple[float, float], body: BodyRegion,
+               shift: np.ndarray) -> np.ndarray:
+    """``still_picture`` (the reference ``picture`` at its size, ``zoom`` (x, y) times the picture's)
+    with the body moved by ``shift`` (pixels of the picture) and the camera still: above the body
+    it is as it was, where the body moves fully it is shifted (an affine warp), and only the rows of
+    the ramp between are remapped (at 1920x1080 a whole-picture remap took 14 ms a frame)."""
+    h, w = still_picture.shape[:2]
+    zx, zy = zoom
+    top = max(0, int(np.floor(zy * (body.chin + min(0.0, shift[1])))) - 2)
+    full = min(h, max(top, int(np.ceil(zy * (body.chin + body.ramp + max(0.0, shift[1])))) + 2))
+    out = still_picture.copy()
+    if full < h:
+        matrix = np.array([[zx, 0.0, zx * shift[0]], [0.0, zy, zy * shift[1] - full]])
+        out[full:] = cv2.warpAffine(picture, matrix, (w, h - full), flags=cv2.INTER_LINEAR,
+                                    borderMode=cv2.BORDER_REPLICATE)
+    if top < full:
+        maps = warp_map((w, h), zoom, body, (None, shift), rows=(top, full))
+        out[top:full] = cv2.remap(picture, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out
+
+
+def warp_map(size: tuple[int, int], zoom: tuple[float, float], body: BodyRegion,
+             now: tuple[np.ndarray | None, np.ndarray | None],
+             then: tuple[np.ndarray | None, np.ndarray | None] | None = None,
+             rows: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """cv2.remap's (map x, map y), float32 (h, w) for ``size`` (w, h), pixels ``zoom`` (x, y) times
+    the reference picture's: where each pixel of a frame whose (global motion map, body shift) is
+    ``now`` comes from in the reference picture (``then`` None) or in a frame whose are ``then``
+    (at the same zoom). A point q of the reference picture is at still(q + weight(q) * shift) in a
+    frame; the inverse is taken with the weight where q's frame position lands, exact where the
+    weight is flat, as it is everywhere but the ramp. Computed every BODY_GRID pixels and scaled up;
+    ``rows`` (first, end): of those rows only."""
+    w, (first, end) = size[0], rows or (0, size[1])
+    h = end - first
+    zx, zy = zoom
+    # grid point i at pixel (i - 0.5) * BODY_GRID - 0.5: cv2.resize's own pixel centres, one point to
+    # spare on each side, so that the pixels kept are interpolated, never clamped
+    gw, gh = -(-w // BODY_GRID) + 2, -(-h // BODY_GRID) + 2
+    gx, gy = np.meshgrid(((np.arange(gw) - 0.5) * BODY_GRID - 0.5) / zx,
+                         (first + (np.arange(gh) - 0.5) * BODY_GRID - 0.5) / zy)
+    points = np.column_stack([gx.ravel(), gy.ravel()])
+    still, shift = now
+    if still is not None:
+        points = (points - still[:, 2]) @ np.linalg.inv(still[:, :2]).T
+    if shift is not None:
+        points = points - body.weight(points[:, 1])[:, None] * shift
+    if then is not None:
+        points = body.moved(points, then[1])
+        if then[0] is not None:
+            points = points @ then[0][:, :2].T + then[0][:, 2]
+        points = points * [zx, zy]
+    maps = cv2.resize(points.reshape(gh, gw, 2).astype(np.float32), (gw * BODY_GRID, gh * BODY_GRID),
+                      interpolation=cv2.INTER_LINEAR)[BODY_GRID:BODY_GRID + h, BODY_GRID:BODY_GRID + w]
+    return np.ascontiguousarray(maps[..., 0]), np.ascontiguousarray(maps[..., 1])
+
+
 def face_texture(face: BaseFace) -> tuple[np.ndarray | None, np.ndarray]:
     """(texture or None, (n, 2) uv with v up) to draw the face alone: its own texture, else its
     reference picture where the picture's projection puts each vertex (enrolment leaves the texture
@@ -177,6 +277,7 @@ class SceneMesh:
     def __init__(self, face: BaseFace, picture: ReferencePicture, rings: tuple[float, ...] = RINGS) -> None:
         vertices, faces = np.asarray(face.vertices, dtype=np.float64), face.faces
         self.reference = reference = Placement.from_matrix(picture.projection)
+        self.body = BodyRegion.of(reference, vertices)
         self.pivot = head_pivot(vertices)
         loop = outer_loop(faces)
         n, count = len(vertices), len(loop)
@@ -263,23 +364,31 @@ class SceneMesh:
         a smoothstep from 1 at the face (1.3 above its centre, the hair) to 0 at the outermost ring."""
         return self._default.copy()
 
+    def anchor_pixels(self, still: np.ndarray | None, shift: np.ndarray | None) -> np.ndarray:
+        """(rings x boundary, 2) pixels (x right, y down) where the background under each ring vertex
+        moves: by the body's ``shift`` (pixels; None: none) where it lies on the body, then by
+        ``still`` (the frame's global motion, a (2, 3) pixel map; None: none)."""
+        pixels = self.body.moved(self.ring_pixels(), shift)
+        return pixels if still is None else pixels @ still[:, :2].T + still[:, 2]
+
     def ring_pixels(self, frame: Placement | None = None) -> np.ndarray:
         """(rings x boundary, 2) pixels (x right, y down) of the ring vertices at rest, or moving fully
         with a rigid head placed by ``frame``."""
         points = self._ring_rest if frame is None else frame.apply(self._ring_model)
         return (points * _FLIP)[:, :2]
 
-    def positions(self, deformed: np.ndarray, frame: Placement, still: np.ndarray | None = None) -> np.ndarray:
+    def positions(self, deformed: np.ndarray, frame: Placement, still: np.ndarray | None = None,
+                  shift: np.ndarray | None = None) -> np.ndarray:
         """(vertices, 3) picture-axes positions: the deformed (pose-free) face placed by ``frame``;
         each ring vertex moved as its boundary vertex is (with the deformation: the neck stretches
         with an opening jaw instead of tearing from it), times the ring's weight, the rest of the
-        way by ``still`` (the frame's global motion, a (2, 3) pixel map; None: none), which moves
-        the background past the outermost ring."""
+        way as the background past the outermost ring moves: by the body's ``shift`` (pixels, None:
+        none) where it lies on the body (:attr:`body`), then by ``still`` (the frame's global motion,
+        a (2, 3) pixel map; None: none)."""
         face = frame.apply(deformed)
         moved = self._ring_model + (deformed[self._edge] - self._rest[self._edge])
         anchor = self._ring_rest
-        if still is not None:
-            pixels = (anchor * _FLIP)[:, :2] @ still[:, :2].T + still[:, 2]
-            anchor = np.column_stack([pixels * _FLIP[:2], anchor[:, 2]])
+        if still is not None or shift is not None:
+            anchor = np.column_stack([self.anchor_pixels(still, shift) * _FLIP[:2], anchor[:, 2]])
         rings = anchor + self._weight * (frame.apply(moved) - anchor)
         return np.concatenate([face, rings, face[self._mouth]])
