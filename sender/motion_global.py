@@ -62,8 +62,8 @@ WORK_SIDE = 960
 #: Corners on the body (where it moves fully, codec/render/picture.BodyRegion) needed to measure it; a
 #: picture with fewer (a plain shirt) carries no body motion, a frame with fewer keeps the last.
 BODY_POINTS = 12
-#: A body shift (the median of its points', picture pixels) is kept until it changes by this much: the
-#: points' jitter on a still body would otherwise cost bits every frame.
+#: A body shift (the mean of its agreeing points', picture pixels) is kept until it changes by this much,
+#: and one smaller than this is none: the points' jitter on a still body would otherwise cost bits every frame.
 BODY_STILL = 0.75
 BODY_AGREE = 1.5  # picture pixels from the median within which a body point agrees
 _IDENTITY = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -181,8 +181,13 @@ class GlobalMotion:
             agree = shifts[np.linalg.norm(shifts - middle, axis=1) < BODY_AGREE / self._shrink]
             if len(agree) >= BODY_POINTS and (best is None or len(agree) > len(best)):
                 best = agree
-        if best is not None and np.linalg.norm(best.mean(axis=0) - self._shift) >= BODY_STILL / self._shrink:
-            self._shift = best.mean(axis=0)
+        if best is None:
+            return
+        shift = best.mean(axis=0)
+        if np.linalg.norm(shift) < BODY_STILL / self._shrink:
+            self._shift = np.zeros(2)  # a still body exactly, as the camera's STILL_PIXELS
+        elif np.linalg.norm(shift - self._shift) >= BODY_STILL / self._shrink:
+            self._shift = shift
 
     def _body_shifts(self, gray: np.ndarray, face: np.ndarray | None, shift: np.ndarray) -> np.ndarray:
         """(n, 2) shifts before the camera's motion of the body's corners that flow there and back from

@@ -450,14 +450,13 @@ def test_the_sender_measures_a_known_global_motion():
     np.testing.assert_allclose(measure.measure(big, landmarks * 2)[:4], got, atol=0.01)
 
 
-def test_shoulders_that_move_on_a_plain_wall_are_not_a_moving_camera():
-    """The bundled clip's case: a plain wall, and corners only on the speaker's shoulders (beside
-    and below the face): they move with the person, so the camera stays still, and the body's own
-    shift is measured instead."""
-    size = 256
+def shoulders_on_a_wall(seed=5, size=256):
+    """(GlobalMotion, landmarks, a function that measures the body shifted by (dx, dy) pixels as
+    body_shift gives it): a plain wall, and corners only on the speaker's shoulders (blobs along the
+    bottom, wider than the face)."""
     image = np.full((size, size, 3), 120, np.uint8)
-    rng = np.random.default_rng(5)
-    for _ in range(200):  # the shoulders: blobs along the bottom, wider than the face
+    rng = np.random.default_rng(seed)
+    for _ in range(200):
         centre = (int(rng.integers(0, size)), int(rng.integers(int(0.8 * size), size)))
         cv2.circle(image, centre, int(rng.integers(2, 6)), tuple(int(v) for v in rng.integers(0, 255, 3)), -1)
     place = Placement(size * 0.3, np.eye(3), np.array([size / 2, -0.4 * size, 0.0]))
@@ -465,12 +464,32 @@ def test_shoulders_that_move_on_a_plain_wall_are_not_a_moving_camera():
     measure = GlobalMotion(face.picture, face.vertices)
     landmarks = landmarks_of(face, measure.reference)
     bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
-    body = np.float32([[1, 0, 4], [0, 1, -3]])  # the body shifts, the wall stays
-    moved = cv2.warpAffine(bgr, body, (size, size), borderMode=cv2.BORDER_REPLICATE)
+
+    def body_at(dx, dy):
+        moved = cv2.warpAffine(bgr, np.float32([[1, 0, dx], [0, 1, dy]]), (size, size),
+                               borderMode=cv2.BORDER_REPLICATE)  # the body shifts, the wall stays
+        return body_shift(measure.measure(moved, landmarks), measure.reference)
+
+    return measure, body_at
+
+
+def test_shoulders_that_move_on_a_plain_wall_are_not_a_moving_camera():
+    """The bundled clip's case: a plain wall, and corners only on the speaker's shoulders (beside
+    and below the face): they move with the person, so the camera stays still, and the body's own
+    shift is measured instead."""
+    measure, body_at = shoulders_on_a_wall()
     assert not measure.usable and measure.body
-    np.testing.assert_array_equal(measure.measure(bgr, landmarks), np.zeros(2))
-    shift = body_shift(measure.measure(moved, landmarks), measure.reference)
-    np.testing.assert_allclose(shift, [4, -3], atol=0.1)
+    assert body_at(0, 0) is None
+    np.testing.assert_allclose(body_at(4, -3), [4, -3], atol=0.1)
+
+
+def test_a_body_that_left_the_picture_is_found_again():
+    """Shoulders moved far down (most of their corners out of the picture, the rest too few to
+    measure) keep the last shift; back in place they are found again, exactly still."""
+    _, body_at = shoulders_on_a_wall(seed=6)
+    np.testing.assert_allclose(body_at(5, 3), [5, 3], atol=0.1)
+    np.testing.assert_allclose(body_at(5, 60), [5, 3], atol=0.1)  # gone below the edge: the last shift
+    assert body_at(0, 0) is None  # back: from no shift, found again
 
 
 def test_a_large_picture_is_followed_at_a_fraction_of_its_size():
