@@ -31,7 +31,7 @@ import numpy as np
 
 import facedeform
 from facedeform.codec.model.deform import Deformer, extended_params
-from facedeform.common.parameters import GLOBAL_PARAMS, MAX_COMPONENTS, POSE_PARAMS
+from facedeform.common.parameters import MAX_COMPONENTS, PLACING_PARAMS
 from facedeform.experiment import metrics
 from facedeform.experiment.clips import crops, track
 from facedeform.protocol.stream import frame_bytes
@@ -58,7 +58,7 @@ def drawn_beside(clip, face, names: tuple[str, ...], dump: Path) -> tuple[list, 
     header = stream_header(names, clip.fps, face.model.content_id)
     size = clip.frames[0].shape[1::-1]
     oracle_view, frozen_view, uncoded_view = (PictureView(header, face.model, size) for _ in range(3))
-    placing = np.array([n in POSE_PARAMS + GLOBAL_PARAMS for n in names])  # head pose and global motion
+    placing = np.array([n in PLACING_PARAMS for n in names])  # head pose, camera and body
     deformer = Deformer(face.model, header.rule)
     oracle, frozen, uncoded, fit_gap = [], [], [], []
     for p, target, seen in zip(params, targets, found):

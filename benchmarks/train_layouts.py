@@ -40,18 +40,21 @@ def widened(names: tuple[str, ...], basis: np.ndarray, extra: tuple[str, ...]) -
     return names + extra, out
 
 
+def _translation(names: tuple[str, ...]) -> tuple[str, ...]:
+    """The head's translation, which a face with a reference picture adds unless ``names`` ("full") has it."""
+    return () if "tx" in names else POSE_PARAMS[3:]
+
+
 def picture_extras(names: tuple[str, ...]) -> tuple[tuple[str, ...], ...]:
-    """What a face with a reference picture adds to ``names``: the head's translation (which "full" has
-    already) and the frame's global motion."""
-    translation = () if "tx" in names else POSE_PARAMS[3:]
-    return tuple(dict.fromkeys(((), translation, translation + GLOBAL_PARAMS)))
+    """What a face with a reference picture adds to ``names``: the head's translation and the frame's
+    global motion."""
+    return tuple(dict.fromkeys(((), _translation(names), _translation(names) + GLOBAL_PARAMS)))
 
 
 def body_extras(names: tuple[str, ...]) -> tuple[tuple[str, ...], ...]:
     """The same with the body's shift: held after every layout of :func:`picture_extras`, which kept
     their indices when the body's motion came."""
-    translation = () if "tx" in names else POSE_PARAMS[3:]
-    return translation + BODY_PARAMS, translation + GLOBAL_PARAMS + BODY_PARAMS
+    return _translation(names) + BODY_PARAMS, _translation(names) + GLOBAL_PARAMS + BODY_PARAMS
 
 
 def bits(dump, basis) -> float:

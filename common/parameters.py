@@ -53,6 +53,9 @@ MOUTH_PARAMS = _GROUP["mouth"]
 BASIS_PARAMS = _GROUP["basis"]
 GLOBAL_PARAMS = _GROUP["global"]
 BODY_PARAMS = _GROUP["body"]
+#: Where the picture's head, camera and body are, not what the face does: a coding basis keeps them on
+#: axes of their own, and a face drawn at rest keeps them.
+PLACING_PARAMS = POSE_PARAMS + GLOBAL_PARAMS + BODY_PARAMS
 #: The lids alone, which the default layouts carry beside the mouth (a blink the face's own basis may not know).
 LID_PARAMS = ("lid_l", "lid_r")
 ROTATION_PARAMS = POSE_PARAMS[:3]

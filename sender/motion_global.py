@@ -116,8 +116,8 @@ class GlobalMotion:
         self._points = _corners(self._gray, face_mask(face, self._work))
         self._matrix = _IDENTITY  # working pixels of the picture -> of the frame
         self._region = BodyRegion.of(self.reference, vertices)
-        on_body = self._region.weight((np.arange(self._work[1]) + 0.5) * self._shrink) >= 1.0
-        body = np.where(on_body[:, None], 255, 0).astype(np.uint8) * np.ones((1, self._work[0]), np.uint8)
+        body = np.zeros(self._gray.shape, np.uint8)
+        body[self._region.weight((np.arange(self._work[1]) + 0.5) * self._shrink) >= 1.0] = 255
         self._body_points = _corners(self._gray, body, BODY_CORNERS)
         self._shift = np.zeros(2)  # the body's, working pixels
 
@@ -177,7 +177,7 @@ class GlobalMotion:
         Followed from the last frame's shift, and where too few points agree on that, from none: a
         body that left the picture's edge and came back is found again."""
         visible = None if face is None else face_mask(face, self._work, 1.2, below=False)  # not where the head is
-        for guess in (self._shift, np.zeros(2)):
+        for guess in (self._shift, np.zeros(2)) if self._shift.any() else (self._shift,):
             shifts = self._body_shifts(gray, visible, guess)
             if len(shifts) >= BODY_POINTS:
                 middle = np.median(shifts, axis=0)
@@ -185,10 +185,9 @@ class GlobalMotion:
                 if len(agree) >= BODY_POINTS:
                     self._settle(agree.mean(axis=0))
                     return
-            if not self._shift.any():
-                return
 
     def _settle(self, shift: np.ndarray) -> None:
+        """Takes the measured ``shift`` (working pixels) as the body's, within BODY_STILL's dead zone."""
         if np.linalg.norm(shift) < BODY_STILL / self._shrink:
             self._shift = np.zeros(2)  # a still body exactly, as the camera's STILL_PIXELS
         elif np.linalg.norm(shift - self._shift) >= BODY_STILL / self._shrink:

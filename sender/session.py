@@ -13,7 +13,7 @@ from facedeform.codec.model.regions import DEFAULT_RULE
 from facedeform.common.errors import InputError
 from facedeform.common.limits import MAX_SIDE
 from facedeform.common.npz import NpzAppender
-from facedeform.common.parameters import BASIS_PARAMS, BODY_PARAMS, GLOBAL_PARAMS, POSE_PARAMS
+from facedeform.common.parameters import BASIS_PARAMS, PLACING_PARAMS
 from facedeform.common.stages import Source
 from facedeform.protocol.basis import principal_basis
 from facedeform.protocol.layouts import shipped_basis
@@ -60,15 +60,14 @@ def stream_header(names: tuple[str, ...], fps: float, face_id: str, quality: int
 
 
 def sample_basis(names: tuple[str, ...], sample: list[np.ndarray]) -> np.ndarray | None:
-    """The coding basis of ``protocol.basis`` for a sample of the call's parameters, head pose and global motion apart;
-    None for a layout with a motion basis's coefficients, which are decorrelated already (a coding
-    basis on top saved 0-7 % on the dev clips' held-out halves and cost 0-5 % more on fd-experiment's
-    4 s clips, for 144-324 header bytes). Steps scale alike at every level, so the basis does not
-    depend on the level."""
+    """The coding basis of ``protocol.basis`` for a sample of the call's parameters, where the head,
+    camera and body are (PLACING_PARAMS) apart; None for a layout with a motion basis's coefficients,
+    which are decorrelated already (a coding basis on top saved 0-7 % on the dev clips' held-out halves
+    and cost 0-5 % more on fd-experiment's 4 s clips, for 144-324 header bytes). Steps scale alike at
+    every level, so the basis does not depend on the level."""
     if any(n in BASIS_PARAMS for n in names):
         return None
-    return principal_basis(np.array(sample), steps_for(names),
-                           [n in POSE_PARAMS + GLOBAL_PARAMS + BODY_PARAMS for n in names])
+    return principal_basis(np.array(sample), steps_for(names), [n in PLACING_PARAMS for n in names])
 
 
 def first_second(fps: float) -> int:

@@ -396,6 +396,18 @@ def test_the_body_moves_by_its_own_shift_below_the_chin_only():
     np.testing.assert_array_equal(view.render(np.zeros(len(names))), rest)  # and back, exactly
 
 
+def test_absurd_body_shifts_from_a_stream_still_draw_a_picture():
+    """A stream's body values far past any picture (its steps times the largest index) draw the
+    picture's edges repeated, with the camera still or moving: no error, the picture's size."""
+    face = a_face_with_a_picture()
+    names = GLOBAL_NAMES + BODY_PARAMS
+    view = PictureView(header(face, names), face, (200, 160))
+    for body in ((1e6, -1e6), (-3e4, 2e5), (1e12, 1e12)):
+        for motion in ((0.0, 0.0, 0.0, 0.0), (0.1, 0.05, 0.02, 3.0)):
+            image = view.render(np.r_[np.zeros(len(NAMES)), motion, body])
+            assert image.shape == (160, 200, 3) and image.dtype == np.uint8
+
+
 def test_the_warp_map_is_the_exact_inverse_of_the_motion():
     """The map cv2.remap reads, computed coarse and scaled up: the inverse of the camera's motion at
     every pixel (to 1e-3 pixels), and of the body's shift where the body moves fully."""
