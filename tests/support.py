@@ -16,7 +16,14 @@ import cv2
 import numpy as np
 import pytest
 
-from facedeform.codec.face_file.format import _PACKING, PATTERN_SCALE, VERTEX_STEPS, personal_face, save_face_file
+from facedeform.codec.face_file.format import (
+    _PACKING,
+    PATTERN_SCALE,
+    VERTEX_STEPS,
+    decode_face,
+    personal_face,
+    save_face_file,
+)
 from facedeform.codec.model.face_model import ReferencePicture, load_base_face, mouth_vertices
 from facedeform.codec.render.picture import Placement
 from facedeform.common.parameters import PAPER_PARAMS
@@ -172,7 +179,8 @@ def a_person(seed=0):
     return neutral, texture
 
 def as_version(data: bytes, version: int) -> bytes:
-    """A current face file rewritten as an older version (1-6) would have held it: the picture's
+    """A current face file rewritten as an older version (1-7) would have held it: the motion basis's
+    patterns as <i1 of 127 steps each before version 8; the picture's
     numbers (projection, ring weights, open mouth's points) in the JSON before version 7; vertices,
     uv and triangles written out in full before version 6; the motion basis's patterns as <f2 in
     version 4; before it the feature points written out, the patterns as <f4, no ring weights;
@@ -188,7 +196,15 @@ def as_version(data: bytes, version: int) -> bytes:
     at += 0 if uv is BASE.uv else 8 * info["vertices"]
     faces = BASE.faces if info.get("topology") == "base" else np.frombuffer(raw, "<u2", 3 * info["faces"], at)
     at += 0 if faces is BASE.faces else 6 * info["faces"]
-    motion_end = at + 2 * k + 3 * c * k
+    motion_end = at + 2 * k + c + 3 * c * k if k else at
+    # version 7's motion basis: the indices, then each pattern's coordinates in 127 steps for 1
+    motion7 = raw[at:at + 2 * k] + np.rint(decode_face(data).motion.vectors * PATTERN_SCALE).astype("<i1").tobytes() \
+        if k else b""
+    if version == 7:
+        repacked = lzma.compress(raw[:at] + motion7 + raw[motion_end:], lzma.FORMAT_RAW, filters=_PACKING)
+        info["packed"] = len(repacked)
+        text = json.dumps(info).encode()
+        return data[:6] + bytes([7, 0]) + len(text).to_bytes(4, "little") + text + repacked + data[12 + n + packed:]
     if "picture" in info:  # version 7's numbers, after the motion basis, back into the JSON
         info["projection"] = np.frombuffer(raw, "<f8", 12, motion_end).reshape(3, 4).tolist()
         rings, points = info.pop("rings", None), info.pop("mouth_points", None)
@@ -198,17 +214,17 @@ def as_version(data: bytes, version: int) -> bytes:
             info["mouth_points"] = np.frombuffer(raw, "<f4", 2 * points, motion_end + 96 + (rings or 0)).reshape(
                 -1, 2).astype(float).tolist()
     if version == 6:
-        repacked = lzma.compress(raw[:motion_end], lzma.FORMAT_RAW, filters=_PACKING)
+        repacked = lzma.compress(raw[:at] + motion7, lzma.FORMAT_RAW, filters=_PACKING)
         info["packed"] = len(repacked)
         text = json.dumps(info).encode()
         return data[:6] + bytes([6, 0]) + len(text).to_bytes(4, "little") + text + repacked + data[12 + n + packed:]
     info.pop("uv", None), info.pop("topology", None)
     mesh = b"".join(np.ascontiguousarray(a, dtype=t).tobytes() for a, t in ((vertices, "<f4"), (uv, "<f4"),
                                                                             (faces, "<u2")))
-    patterns = np.frombuffer(raw, "<i1", 3 * c * k, at + 2 * k)
+    patterns = np.frombuffer(motion7, "<i1", 3 * c * k, 2 * k)
     if version < 5:
         patterns = (patterns / PATTERN_SCALE).astype("<f2" if version == 4 else "<f4")
-    motion = raw[at:at + 2 * k] + patterns.tobytes()
+    motion = motion7[:2 * k] + patterns.tobytes()
     images = data[12 + n + packed:]
     if version < 4:
         if info["meta"] == "base":

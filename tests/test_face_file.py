@@ -122,7 +122,7 @@ def test_files_of_older_versions_are_still_read():
     person = decode_face(personal_face(neutral, texture, motion=motion, picture=a_picture()))
     data = encode_face(replace(person, picture=replace(person.picture, ring_weights=np.full(144, 0.5))))
     now = decode_face(data)
-    for version in (1, 2, 3, 4, 5):
+    for version in (1, 2, 3, 4, 5, 6, 7):
         kept = data if version > 1 else personal_face(neutral, texture)
         old = decode_face(as_version(kept, version))
         np.testing.assert_allclose(old.vertices, now.vertices, atol=1e-6)  # as <f4 held them

@@ -97,6 +97,51 @@ def test_a_damaged_basis_is_refused():
         decode_face(with_info(data[:at] + packed + data[at + size:], packed=len(packed)))
 
 
+def test_each_pattern_is_stored_as_finely_as_its_coefficients_need():
+    from facedeform.codec.model.motion_basis import LEAST_STEPS, MOST_STEPS, REACH_STEPS
+
+    residuals, vertices, _ = planted()
+    residuals = residuals * 0.1  # coefficients of about 0.015, 0.009 and 0.003 face heights at most
+    basis = learn_basis(residuals, vertices, 3)
+    coefficients = np.linalg.lstsq(basis.vectors.reshape(3, -1).T, residuals.reshape(len(residuals), -1).T,
+                                   rcond=None)[0]
+    reach = np.abs(coefficients).max(axis=1)
+    np.testing.assert_array_equal(basis.steps, np.clip(np.ceil(REACH_STEPS * reach), LEAST_STEPS, MOST_STEPS))
+    assert basis.steps.max() < MOST_STEPS  # coarser than a file stored every pattern before
+    face = dataclasses.replace(load_base_face(), motion=basis)
+    data = encode_face(face)
+    back = decode_face(data).motion
+    np.testing.assert_array_equal(back.steps, basis.steps)
+    error = np.abs(back.vectors - basis.vectors).max(axis=(1, 2))
+    assert np.all(error <= 0.5 / basis.steps + 1e-12)
+    assert np.all(reach * error <= 0.5 / REACH_STEPS)  # at the largest coefficient, 1/2048 of the face's height
+    assert encode_face(dataclasses.replace(face, motion=back)) == data  # what it stores, stored again the same
+    finest = encode_face(dataclasses.replace(face, motion=dataclasses.replace(basis, steps=None)))
+    assert len(finest) > len(data)
+
+
+def _with_motion_bytes(data: bytes, change) -> bytes:
+    """The face file with its packed mesh and basis changed by ``change(raw, start of the basis)``."""
+    n = int.from_bytes(data[8:12], "little")
+    at, size = 12 + n, json.loads(data[12:12 + n])["packed"]
+    raw = bytearray(lzma.decompress(data[at:at + size], lzma.FORMAT_RAW, filters=_PACKING))
+    change(raw, bytes(raw).index(np.asarray([100, 101], "<u2").tobytes()))
+    packed = lzma.compress(bytes(raw), lzma.FORMAT_RAW, filters=_PACKING)
+    return with_info(data[:at] + packed + data[at + size:], packed=len(packed))
+
+
+@pytest.mark.parametrize("where, value", [(60, 0), (60, 200), (63, 100)])  # a step count; a vertex past its steps
+def test_a_basis_with_impossible_steps_is_refused(where, value):
+    residuals, vertices, _ = planted()
+    data = encode_face(dataclasses.replace(load_base_face(), motion=learn_basis(residuals * 0.1, vertices, 3)))
+
+    def change(raw, start):
+        raw[start + where] = value
+
+    with pytest.raises(InputError, match="motion basis out of range"):
+        decode_face(_with_motion_bytes(data, change))
+
+
 def test_coefficients_move_exactly_the_basis_vertices():
     face = _face_with_basis()
     deformer = Deformer(face)

@@ -14,6 +14,10 @@ deformed mesh like any other linear term.
 Each pattern is scaled so that a coefficient of 1 moves its most-moved vertex
 by exactly 1 base-face unit: the coefficients then share the quantiser step
 of the feature vectors, with the same bound on the vertex error.
+
+A face file stores each pattern in whole steps, as finely as its coefficients need
+(``steps``): a pattern whose coefficients stay small is drawn just as well from
+coarser numbers, which take fewer bytes.
 """
 
 from dataclasses import dataclass
@@ -24,16 +28,26 @@ from facedeform.common.errors import InputError
 from facedeform.common.parameters import BASIS_PARAMS, MAX_COMPONENTS
 
 OVER = ("rest", "paper")  # what the patterns are displacements from
+#: The most steps a face file gives a pattern's unit move (a vertex coordinate in a signed byte).
+MOST_STEPS = 127
+#: Steps per unit of the largest coefficient the enrolment clip gave a pattern: at that coefficient a vertex
+#: is then off by at most 1 / (2 REACH_STEPS) of the face's height, a quarter of a coefficient's own
+#: rounding at the default level (steps of 1/250).
+REACH_STEPS = 1024
+LEAST_STEPS = 4
 
 
 @dataclass(frozen=True)
 class MotionBasis:
     """``vertices`` (k,) the landmark indices it moves; ``vectors`` (m, k, 3) float64 displacement
-    of each of them per unit coefficient, for m (1..MAX_COMPONENTS) patterns; ``over``: one of OVER."""
+    of each of them per unit coefficient, for m (1..MAX_COMPONENTS) patterns; ``over``: one of OVER;
+    ``steps``: (m,) how many steps a face file gives each pattern's unit move (LEAST_STEPS..MOST_STEPS;
+    None: MOST_STEPS each)."""
 
     vertices: np.ndarray
     vectors: np.ndarray
     over: str = "rest"
+    steps: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         m, k = len(self.vectors), len(self.vertices)
@@ -41,6 +55,9 @@ class MotionBasis:
             raise InputError(f"a motion basis needs 1-{MAX_COMPONENTS} patterns of (k, 3), got {self.vectors.shape}")
         if self.over not in OVER:
             raise InputError(f"a motion basis is over one of {', '.join(OVER)}, not {self.over!r}")
+        if self.steps is not None and (np.shape(self.steps) != (m,) or not np.all(
+                (np.asarray(self.steps) >= 1) & (np.asarray(self.steps) <= MOST_STEPS))):
+            raise InputError(f"a motion basis's steps are 1-{MOST_STEPS} for each of its {m} patterns")
 
     @property
     def components(self) -> int:
@@ -72,11 +89,13 @@ def learn_basis(residuals: np.ndarray, vertices: np.ndarray, components: int, ov
     if not 1 <= components <= min(MAX_COMPONENTS, len(r)):
         raise InputError(f"a motion basis of {components} patterns needs at least {components} frames "
                          f"(have {len(r)}) and at most {MAX_COMPONENTS} patterns")
-    _, _, vt = np.linalg.svd(r.reshape(len(r), -1), full_matrices=False)
+    u, s, vt = np.linalg.svd(r.reshape(len(r), -1), full_matrices=False)
     patterns = vt[:components].reshape(components, -1, 3)
-    out = []
-    for p in patterns:
+    out, steps = [], []
+    for i, p in enumerate(patterns):
         top = p[np.argmax(np.linalg.norm(p, axis=1))]
         sign = np.sign(top[1]) if abs(top[1]) > 1e-12 else np.sign(top[0]) or 1.0
         out.append(sign * p / np.linalg.norm(top))
-    return MotionBasis(np.asarray(vertices, dtype=np.int64), np.stack(out), over)
+        reach = np.abs(u[:, i]).max() * s[i] * np.linalg.norm(top)  # its largest coefficient, in these units
+        steps.append(int(np.clip(np.ceil(REACH_STEPS * reach), LEAST_STEPS, MOST_STEPS)))
+    return MotionBasis(np.asarray(vertices, dtype=np.int64), np.stack(out), over, np.array(steps))
