@@ -16,6 +16,7 @@ from facedeform.codec.render.eyelids import Eyelids
 from facedeform.codec.render.frame_video import HELD, VideoLayer
 from facedeform.codec.render.mouth_interior import LOWER_LIP, UPPER_LIP
 from facedeform.codec.render.picture import (
+    Placement,
     SceneMesh,
     body_shift,
     face_texture,
@@ -209,6 +210,11 @@ class PictureView(FaceView):
         self._positions = positions
         self._drawn.append((self._seq, positions, motion))
         return self._renderer.image(positions * self._scale, self._camera)
+
+    @property
+    def placing(self) -> tuple[Placement, np.ndarray]:
+        """(the reference picture's placement of the face, the head's pivot): what the head pose is relative to."""
+        return self._scene.reference, self._scene.pivot
 
     def carry(self, video: np.ndarray, since: int) -> np.ndarray:
         """The picture layer's video frame ``video`` (any size), which shows frame ``since``, at this

@@ -2,6 +2,7 @@
 
 import time
 from collections.abc import Iterator, Sequence
+from dataclasses import replace
 from itertools import chain, islice
 from pathlib import Path
 
@@ -33,6 +34,7 @@ from facedeform.protocol.stream import (
 from facedeform.sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing, resolve_layout
 from facedeform.sender.config import SPEAKER_RATE, SendConfig, parameter_rate
 from facedeform.sender.picture_layer import PictureLayer, layer_pays
+from facedeform.sender.pixel_pose import PixelPose, refines
 from facedeform.sender.sources import open_source
 
 #: Seconds between keyframes over datagrams: a burst that defeats the copies of each packet
@@ -195,6 +197,7 @@ class SendSession:
 
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)
+        self._pixel_pose = PixelPose(self._face, self.header) if refines(self._face, self.header.names) else None
         self.encoder = PacketEncoder(self.header, self.config.frames_per_packet, self._model, self.config.dead_zone)
         self.datagrams = Datagrams(self.encoder.header()[0], self.config.redundancy,
                                    sealer=self.sealer) if self.config.datagrams else None
@@ -233,6 +236,8 @@ class SendSession:
                 self.header_bytes = stream_size(header, self.sealed)
                 yield header
             self.frame_count += 1
+            if self._pixel_pose is not None and result.landmarks is not None and result.frame is not None:
+                result = replace(result, params=self._pixel_pose.refine(result.params, result.frame, result.landmarks))
             if self._dump_path is not None:
                 if self._dump is None:
                     self._dump = dump_writer(self._dump_path, len(self.header.names))

@@ -54,10 +54,13 @@ def test_a_rate_below_the_coarsest_level_is_kept_closer_by_the_dead_zone(face):
 
 
 def test_with_a_speakers_motion_basis_the_default_keeps_level_3_within_the_speaker_rate(face, monkeypatch):
-    """The sample's speaker costs less than SPEAKER_RATE at level 3: the default is level 3 exactly;
-    a speaker that costs more (here: a lower rate to keep) gets a coarser level and stays within it."""
+    """The sample's speaker costs less than SPEAKER_RATE at level 3: the default is level 3 (the
+    dead zone widened at most for a few frames after the call's first key, which costs more than a
+    frame's share of the rate); a speaker that costs more (here: a lower rate to keep) gets a
+    coarser level and stays within it."""
     default, rate, level = send(face=face)
-    assert rate <= SPEAKER_RATE and level == 3 and default == send(face=face, level=3)[0]
+    _, fixed_rate, _ = send(face=face, level=3)
+    assert rate <= SPEAKER_RATE and level == 3 and 0.95 * fixed_rate <= rate <= fixed_rate
     monkeypatch.setattr(session, "SPEAKER_RATE", rate / 2)
     _, thin, coarser = send(face=face)
     assert coarser < 3 and thin <= rate / 2

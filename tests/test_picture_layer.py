@@ -8,7 +8,7 @@ import pytest
 
 import facedeform
 from facedeform.codec.render.frame_video import VideoEncoder
-from facedeform.protocol.framing import PICTURE, SYNC, build, packet_size, packet_type, varint
+from facedeform.protocol.framing import PICTURE, build, kind_of, varint
 from facedeform.protocol.stream import DatagramDecoder, Frame, Picture, StreamDecoder, frame_bytes
 from facedeform.receiver.face_view import PictureView
 from facedeform.sender import picture_layer
@@ -40,38 +40,26 @@ def sender_pictures():
 
 @pytest.fixture(scope="module")
 def call(face):
-    """(stream chunks, the sender's own picture of every frame, bits of each frame's packets) at RATE."""
+    """(stream chunks, the sender's own picture of every frame, bits of each frame's packets, the
+    packets of each chunk) at RATE."""
     with sender_pictures() as pictures:
         session = SendSession(str(CLIP), SendConfig(bitrate=RATE * 1000, embed_face=False), face=face)
-        chunks, bits, sent = [], [], 0
+        chunks, bits, sent, lists = [], [], 0, []
         for packets in session.packets():
             if packets:
                 chunks.append(frame_bytes(packets, session.sealed))
+                lists.append(packets)
             if len(chunks) > 1:  # per frame, after the header
                 total = 8 * (sum(map(len, chunks)) - len(chunks[0]))
                 bits += [0] * (session.frame_count - len(bits))
                 bits[-1] += total - sent
                 sent = total
     assert session.stats()["picture_packets"] > 0
-    return chunks, pictures, np.array(bits)
-
-
-def packets_of(stream: bytes) -> list[bytes]:
-    """The stream cut at each packet with a sync byte (a frames packet keeps the deltas after it)."""
-    cuts, pos = [], 0
-    while pos < len(stream):
-        start = pos
-        if stream[pos] == SYNC and packet_type(stream[pos + 1]) == PICTURE:
-            pos += 1 + packet_size(stream, pos + 1)
-        else:
-            pos = stream.find(bytes([SYNC]) + bytes([PICTURE << 5]), pos + 1)
-            pos = len(stream) if pos < 0 else pos
-        cuts.append(stream[start:pos])
-    return cuts
+    return chunks, pictures, np.array(bits), lists
 
 
 def test_the_receiver_draws_what_the_sender_reconstructed_bit_for_bit(face, call):
-    chunks, pictures, _ = call
+    chunks, pictures, _, _ = call
     drawn = list(facedeform.decode(chunks, face))
     assert len(drawn) == len(pictures)
     for mine, theirs in zip(pictures, drawn):
@@ -94,9 +82,9 @@ def test_the_layer_shows_what_the_model_cannot(face):
 
 
 def test_without_its_picture_layer_a_stream_decodes_to_the_model_only_picture(face, call):
-    chunks, _, _ = call
+    chunks, _, _, lists = call
     stream = b"".join(chunks)
-    stripped = b"".join(c for c in packets_of(stream) if not c.startswith(bytes([SYNC, PICTURE << 5])))
+    stripped = b"".join(frame_bytes([p for p in packets if kind_of(p) != PICTURE]) for packets in lists)
     assert len(stripped) < len(stream)
     decoder = StreamDecoder()
     events = decoder.feed(stripped) + decoder.close()
@@ -109,7 +97,7 @@ def test_without_its_picture_layer_a_stream_decodes_to_the_model_only_picture(fa
 
 
 def test_the_rate_is_kept_within_a_tenth_over_any_two_seconds(call):
-    _, _, bits = call
+    _, _, bits, _ = call
     window = 50  # frames: 2 s at 25 fps
     assert len(bits) > window
     sums = np.convolve(bits, np.ones(window), mode="valid")
@@ -125,7 +113,7 @@ def test_the_rate_is_kept_within_a_tenth_over_any_two_seconds(call):
     varint(3),  # ends inside its numbers
 ])
 def test_absurd_picture_packets_are_damage_not_memory(face, call, body):
-    chunks, _, _ = call
+    chunks, _, _, _ = call
     stream = b"".join(chunks)
     hostile = stream[:len(chunks[0])] + build(PICTURE, body) * 200 + stream[len(chunks[0]):]
     tracemalloc.start()
@@ -140,7 +128,7 @@ def test_absurd_picture_packets_are_damage_not_memory(face, call, body):
 def test_a_video_frame_larger_than_the_picture_is_one_report_and_the_face_goes_on(face, call):
     """A key of a real AV1 video larger than the face's picture (dav1d refuses it by its pixel
     count before it allocates the frame): one report, every frame drawn."""
-    chunks, _, _ = call
+    chunks, _, _, _ = call
     stream = b"".join(chunks)
     large = VideoEncoder((1024, 1024), 20_000, 25).encode(np.zeros((1024, 1024, 3), np.uint8), key=True)
     payload = b"\x01\x00" + large  # a key, no block the model's
@@ -152,9 +140,14 @@ def test_a_video_frame_larger_than_the_picture_is_one_report_and_the_face_goes_o
 
 
 def test_a_stream_cut_inside_a_picture_packet_keeps_its_frames(face, call):
-    chunks, _, _ = call
+    chunks, _, _, lists = call
     stream = b"".join(chunks)
-    starts = [c for c in range(len(chunks[0]), len(stream)) if stream.startswith(bytes([SYNC, PICTURE << 5]), c)]
+    starts, at = [], 0
+    for packets in lists:
+        for packet in packets:
+            if kind_of(packet) == PICTURE:
+                starts.append(at)
+            at += len(packet)
     cut = starts[5] + 5  # inside a later frame's picture packet
     got = []
     with pytest.raises(facedeform.common.errors.BitstreamError, match="truncated"):

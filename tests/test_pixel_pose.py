@@ -1,0 +1,68 @@
+"""The head's placement refined against the frame's pixels (sender/pixel_pose.py)."""
+
+import cv2
+import numpy as np
+import pytest
+
+from facedeform.codec.model.face_model import N_LANDMARKS
+from facedeform.common.parameters import PAPER_PARAMS, POSE_PARAMS
+from facedeform.receiver.face_view import PictureView
+from facedeform.sender.pixel_pose import PixelPose, refines
+from facedeform.sender.session import stream_header
+
+NAMES = PAPER_PARAMS + POSE_PARAMS
+RX, RZ, TX, TY = (NAMES.index(n) for n in ("rx", "rz", "tx", "ty"))
+
+
+def _drawn(face, params):
+    """(the picture of ``params`` as the receiver draws it, BGR; its face's (468, 3) pixel positions)."""
+    view = PictureView(stream_header(NAMES, 25.0, face.content_id), face, face.picture.image.shape[1::-1])
+    image = cv2.cvtColor(view.render(params), cv2.COLOR_RGB2BGR)
+    face_points = view._positions[:N_LANDMARKS] * [1.0, -1.0, 1.0]  # picture axes, y up -> pixels, y down
+    return image, face_points
+
+
+def _error(a, b):
+    return float(np.mean((a.astype(float) - b) ** 2))
+
+
+@pytest.fixture(scope="module")
+def person(face):
+    """The sample clip's speaker's face model, with its reference picture."""
+    return face.model
+
+
+@pytest.mark.slow
+def test_the_pose_moves_to_where_the_frame_shows_the_face(person):
+    face = person
+    truth = np.zeros(len(NAMES))
+    truth[[RZ, TX, TY]] = 2.0, 0.03, -0.02  # a turn of 2 degrees in the picture, a shift of a few pixels
+    frame, _ = _drawn(face, truth)
+    guess = np.zeros(len(NAMES))
+    drawn, points = _drawn(face, guess)
+    refined = PixelPose(face, stream_header(NAMES, 25.0, face.content_id)).refine(guess, frame, points)
+    # most of the way: the region aligned holds the rings too, which follow the head only in part
+    share = refined[[RZ, TX, TY]] / truth[[RZ, TX, TY]]
+    assert np.all((share > 0.5) & (share < 1.1)), share
+    assert abs(refined[RX]) < 0.3  # a turn in the picture's plane stays one
+    np.testing.assert_array_equal(refined[:len(PAPER_PARAMS)], guess[:len(PAPER_PARAMS)])  # the expression as it was
+    assert _error(_drawn(face, refined)[0], frame) < 0.2 * _error(drawn, frame)
+
+
+@pytest.mark.slow
+def test_a_frame_with_nothing_to_align_leaves_the_pose(person):
+    face = person
+    params = np.zeros(len(NAMES))
+    params[TX] = 0.01
+    _, points = _drawn(face, params)
+    pose = PixelPose(face, stream_header(NAMES, 25.0, face.content_id))
+    flat = np.full(face.picture.image.shape, 128, np.uint8)
+    np.testing.assert_array_equal(pose.refine(params, flat, points), params)
+
+
+def test_only_a_picture_layout_is_refined(person):
+    face = person
+    assert refines(face, NAMES)
+    assert not refines(face, PAPER_PARAMS + POSE_PARAMS[:3])  # no place or size to move
+    with pytest.raises(ValueError):
+        PixelPose(face, stream_header(PAPER_PARAMS, 25.0, face.content_id))
