@@ -99,10 +99,11 @@ def run(height: int, folder: Path) -> dict:
 
     lossless, h264 = make_clip(SIZES[height], folder)
     face = facedeform.enroll(str(lossless))
-    start = time.process_time()
-    session = SendSession(str(lossless), SendConfig(embed_face=False), face=face)
-    chunks = [frame_bytes(p, session.sealed) for p in session.packets() if p]
-    send_cpu = time.process_time() - start
+    for _ in range(2):  # the first pass loads the machine code, as the receiver's below
+        start = time.process_time()
+        session = SendSession(str(lossless), SendConfig(embed_face=False), face=face)
+        chunks = [frame_bytes(p, session.sealed) for p in session.packets() if p]
+        send_cpu = time.process_time() - start
     frames = session.frame_count
     sum(1 for _ in facedeform.decode(chunks, face))  # compiled and warm
     totals: dict = defaultdict(float)

@@ -30,6 +30,9 @@ FACE_GROW, MOUTH_GROW = 1.8, 1.6
 #: The largest correction taken, in picture sides (the picture's centre moved) and degrees: more is
 #: an alignment that went astray.
 MOST_SHIFT, MOST_TURN = 0.04, 4.0
+#: Pictures with a larger side above this are aligned every other frame, the frame between moved by the
+#: last alignment: at 1920x1080 an alignment costs the sender about 5 ms (docs/picture.md).
+HELD_ABOVE = 2 * WORK_SIDE
 ITERATIONS, EPSILON, SMOOTHING = 15, 1e-4, 5  # ECC's stopping rule and its Gaussian (pixels)
 
 
@@ -56,10 +59,21 @@ class PixelPose:
         self._mouth = mouth_vertices(face)
         self._reference, self._pivot = self._view.placing
         self._last = np.eye(2, 3, dtype=np.float32)  # the last frame's alignment, where the next one starts
+        self._every = 1 if max(width, height) <= HELD_ABOVE else 2
+        self._held: np.ndarray | None = None  # the last correction, lifted (see _moved)
+        self._count = 0
 
     def refine(self, params: np.ndarray, frame_bgr: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
         """``params`` with the head pose moved so that the drawn face meets ``frame_bgr``'s (any size;
         ``landmarks``: its tracked (468, 3) pixels), or as they are if the alignment fails."""
+        if self._count % self._every == 0:
+            self._held = self._correction(params, frame_bgr, landmarks)
+        self._count += 1
+        return params if self._held is None else self._moved(params, self._held)
+
+    def _correction(self, params: np.ndarray, frame_bgr: np.ndarray, landmarks: np.ndarray) -> np.ndarray | None:
+        """(3, 4) map of picture pixels (x, y down, depth) that moves the face drawn for ``params``
+        onto ``frame_bgr``'s; None if the alignment fails."""
         width, height = self.size
         frame = cv2.resize(cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2GRAY), self.size, interpolation=cv2.INTER_AREA)
         model = cv2.cvtColor(self._view.model_picture(params), cv2.COLOR_RGB2GRAY)
@@ -73,7 +87,7 @@ class PixelPose:
                                            mask, SMOOTHING)
         except cv2.error:  # no convergence, or nothing to align
             self._last = np.eye(2, 3, dtype=np.float32)
-            return params
+            return None
         correction = cv2.invertAffineTransform(warp).astype(np.float64)  # the drawn face's pixels to the frame's
         centre = np.array([width, height]) / 2.0
         moved = correction[:, :2] @ centre + correction[:, 2] - centre
@@ -81,10 +95,14 @@ class PixelPose:
         if not (np.all(np.isfinite(correction)) and abs(turn) <= MOST_TURN
                 and np.linalg.norm(moved) <= MOST_SHIFT * max(width, height)):
             self._last = np.eye(2, 3, dtype=np.float32)
-            return params
+            return None
         self._last = np.asarray(warp, dtype=np.float32)
         lifted = np.eye(3, 4)  # the correction in the picture's pixels, depth kept
         lifted[:2, :2], lifted[:2, 3] = correction[:, :2], correction[:, 2] / self._zoom
+        return lifted
+
+    def _moved(self, params: np.ndarray, lifted: np.ndarray) -> np.ndarray:
+        """``params`` with the head placed as ``lifted`` moves the drawn face."""
         placement = frame_placement(self._reference, params[self._pose], self._pivot).matrix()
         matrix = lifted[:, :3] @ placement
         matrix[:, 3] += lifted[:, 3]

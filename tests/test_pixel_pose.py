@@ -60,6 +60,24 @@ def test_a_frame_with_nothing_to_align_leaves_the_pose(person):
     np.testing.assert_array_equal(pose.refine(params, flat, points), params)
 
 
+@pytest.mark.slow
+def test_a_large_picture_is_aligned_every_other_frame_and_held_between(person, monkeypatch):
+    from facedeform.sender import pixel_pose
+
+    face = person
+    monkeypatch.setattr(pixel_pose, "HELD_ABOVE", 0)  # as a picture above twice the working side
+    truth = np.zeros(len(NAMES))
+    truth[[TX, TY]] = 0.03, -0.02
+    frame, _ = _drawn(face, truth)
+    guess = np.zeros(len(NAMES))
+    _, points = _drawn(face, guess)
+    pose = PixelPose(face, stream_header(NAMES, 25.0, face.content_id))
+    first = pose.refine(guess, frame, points)
+    flat = np.full(frame.shape, 128, np.uint8)  # nothing to align: the second frame takes the first's move
+    np.testing.assert_allclose(pose.refine(guess, flat, points), first)
+    np.testing.assert_array_equal(pose.refine(guess, flat, points), guess)  # the third is aligned, and fails
+
+
 def test_only_a_picture_layout_is_refined(person):
     face = person
     assert refines(face, NAMES)
