@@ -163,6 +163,8 @@ class SendSession:
         self._aim, self._finest, self._level_share = self._parameter_aim(resolve_layout(config.layout, model))
         self._keeper: RateKeeper | None = None
         self._configure(DEFAULT_QUALITY if config.level is None else config.level)
+        # once: a later _configure changes the level, not the layout, rule or face the view draws
+        self._pixel_pose = PixelPose(model, self.header) if refines(model, self.header.names) else None
         self.frame_count = 0
         self._dump_path = dump
         self._dump: NpzAppender | None = None
@@ -197,7 +199,6 @@ class SendSession:
 
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)
-        self._pixel_pose = PixelPose(self._face, self.header) if refines(self._face, self.header.names) else None
         self.encoder = PacketEncoder(self.header, self.config.frames_per_packet, self._model, self.config.dead_zone)
         self.datagrams = Datagrams(self.encoder.header()[0], self.config.redundancy,
                                    sealer=self.sealer) if self.config.datagrams else None

@@ -360,11 +360,16 @@ def _steps_back(differences: np.ndarray, order: list[tuple[int, list[int]]]) -> 
     return values
 
 
+def _pattern_type(version: int) -> str:
+    """The dtype of a version 2-7 file's pattern coordinates."""
+    return "<i1" if version >= 5 else "<f2" if version == 4 else "<f4"
+
+
 def _motion_size(version: int, k: int, c: int) -> int:
     """Bytes of a motion basis of c patterns over k vertices in a file of ``version``."""
     if version >= 8:
         return 2 * k + c + 3 * c * k
-    return 2 * k + 3 * (1 if version >= 5 else 2 if version == 4 else 4) * c * k
+    return 2 * k + 3 * np.dtype(_pattern_type(version)).itemsize * c * k
 
 
 def _decode_motion(data: bytes, pos: int, k: int, c: int, over: str, version: int, faces: np.ndarray,
@@ -381,7 +386,7 @@ def _decode_motion(data: bytes, pos: int, k: int, c: int, over: str, version: in
         if np.any(np.abs(values) > steps[:, None, None]):
             raise bad("motion basis out of range")
         return MotionBasis(vertices, values / steps[:, None, None], over, steps)
-    pattern = "<i1" if version >= 5 else "<f2" if version == 4 else "<f4"
+    pattern = _pattern_type(version)
     vectors = np.frombuffer(data, pattern, 3 * c * k, pos + 2 * k).reshape(c, k, 3).astype(np.float64)
     if pattern == "<i1":
         vectors /= PATTERN_SCALE
