@@ -11,6 +11,8 @@ On the dev clips' 256x256 crops at fd-send's defaults the whole picture gained 0
 alignment starts from the last one's, so a few iterations suffice (15: the same dB as 40 from none).
 """
 
+import math
+
 import cv2
 import numpy as np
 
@@ -55,7 +57,7 @@ class PixelPose:
         if face.picture is None or not refines(face, header.names):
             raise ValueError("the pose is refined in pixels only against a reference picture")
         height, width = face.picture.image.shape[:2]
-        shrink = max(1, round(Placement.from_matrix(face.picture.projection).scale / FACE_PIXELS))
+        shrink = _shrink(width, height, Placement.from_matrix(face.picture.projection).scale / FACE_PIXELS)
         self.size = (max(16, width // shrink), max(16, height // shrink))
         self._zoom = np.array(self.size) / (width, height)
         self._view = PictureView(header, face, self.size)
@@ -117,6 +119,17 @@ class PixelPose:
         out = params.copy()
         out[self._pose] = relative_pose(self._reference, placed, self._pivot)
         return out
+
+
+def _shrink(width: int, height: int, wanted: float) -> int:
+    """The whole number of times to shrink a ``width`` x ``height`` picture, near ``wanted``: the
+    nearest (by ratio) within 2/3 to 3/2 of it that divides both sides, where one does, since OpenCV
+    averages a whole number of pixels far faster than a fraction of one (at 1920x1080 a frame
+    shrunk 8 times took 0.6 ms, 7 times, which leaves 1920 a fraction over, 3.8 ms)."""
+    nearest = max(1, round(wanted))
+    exact = [s for s in range(max(1, math.ceil(wanted * 2 / 3)), math.floor(wanted * 3 / 2) + 1)
+             if width % s == 0 and height % s == 0]
+    return min(exact, key=lambda s: abs(math.log(s / wanted)), default=nearest)
 
 
 def _hull(points: np.ndarray, grow: float) -> np.ndarray:

@@ -7,7 +7,7 @@ import pytest
 from facedeform.codec.model.face_model import N_LANDMARKS
 from facedeform.common.parameters import PAPER_PARAMS, POSE_PARAMS
 from facedeform.receiver.face_view import PictureView
-from facedeform.sender.pixel_pose import PixelPose, refines
+from facedeform.sender.pixel_pose import PixelPose, _shrink, refines
 from facedeform.sender.session import stream_header
 
 NAMES = PAPER_PARAMS + POSE_PARAMS
@@ -84,3 +84,14 @@ def test_only_a_picture_layout_is_refined(person):
     assert not refines(face, PAPER_PARAMS + POSE_PARAMS[:3])  # no place or size to move
     with pytest.raises(ValueError):
         PixelPose(face, stream_header(PAPER_PARAMS, 25.0, face.content_id))
+
+
+@pytest.mark.parametrize("width, height, wanted, shrink", [
+    (1920, 1080, 7.38, 8),  # 7 leaves 1920 a fraction over: 8 divides both sides
+    (1280, 720, 4.9, 5),
+    (256, 256, 2.1, 2),
+    (1921, 1081, 7.4, 7),  # nothing near divides both: the nearest whole number
+    (360, 288, 0.4, 1),
+])
+def test_the_working_picture_shrinks_a_whole_number_of_times_that_divides_both_sides(width, height, wanted, shrink):
+    assert _shrink(width, height, wanted) == shrink
