@@ -135,8 +135,8 @@ class PictureLayer:
         elif self._layer.frame is not None and min(self._saved, room) >= 8 * (PACKING + 4):
             rgb = self._rgb(frame_bgr)
             favour = self._favour()
-            data = self._layer.make(seq, None, False, lambda held, since, before: choose_blocks(
-                model, held, rgb, before, BLOCKS_ONLY_GAIN, favour, self._view.carry(held, since)))
+            data = self._layer.make(seq, None, False, model, self._view.carry, lambda parts, before: choose_blocks(
+                model, parts, rgb, before, BLOCKS_ONLY_GAIN, favour))
             packets = [] if data is None else encoder.picture(seq, data)
             self._saved -= 8 * stream_size(packets, self._sealed)
         bits = 8 * stream_size(packets, self._sealed)
@@ -161,8 +161,8 @@ class PictureLayer:
     def _send(self, seq: int, rgb: np.ndarray, model: np.ndarray, key: bool, encoder: PacketEncoder) -> list[bytes]:
         video = self._encoder.encode(cv2.resize(rgb, self._video_size, interpolation=cv2.INTER_AREA), key)
         favour = self._favour()
-        data = self._layer.make(seq, video, key, lambda decoded, since, before: choose_blocks(
-            model, decoded, rgb, before, favour=favour, up=self._view.carry(decoded, since)))
+        data = self._layer.make(seq, video, key, model, self._view.carry, lambda parts, before: choose_blocks(
+            model, parts, rgb, before, favour=favour))
         packets = [] if data is None else encoder.picture(seq, data)
         bits = 8 * stream_size(packets, self._sealed)
         # A packet's size to expect: after the first key, half of it (the next frame comes after the

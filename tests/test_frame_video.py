@@ -14,6 +14,7 @@ from facedeform.codec.render.frame_video import (
     choose_blocks,
     decode_blocks,
     encode_blocks,
+    video_parts,
     video_size,
 )
 
@@ -61,10 +62,10 @@ def test_both_ends_of_a_video_hold_the_same_frames_and_blocks():
     encoder = VideoEncoder((64, 64), 20_000, 25)
     model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
     for seq, frame in enumerate(frames(6)):
-        def choose(decoded, since, before, odd=seq % 2):
+        def choose(parts, before, odd=seq % 2):
             return np.eye(*before.shape, dtype=bool) if odd else before
 
-        data = sender.make(seq, encoder.encode(frame, key=seq == 0), seq == 0, choose)
+        data = sender.make(seq, encoder.encode(frame, key=seq == 0), seq == 0, model, None, choose)
         assert receiver.take(seq, data)
         np.testing.assert_array_equal(receiver.chosen, sender.chosen)
         np.testing.assert_array_equal(receiver.draw(seq, model), sender.draw(seq, model))
@@ -75,8 +76,8 @@ def test_a_gap_in_the_counter_draws_the_model_alone_until_the_next_key():
     sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
     encoder = VideoEncoder((64, 64), 20_000, 25)
     model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
-    keep = lambda decoded, since, before: before  # noqa: E731
-    payloads = [sender.make(seq, encoder.encode(f, key=seq in (0, 4)), seq in (0, 4), keep)
+    keep = lambda parts, before: before  # noqa: E731
+    payloads = [sender.make(seq, encoder.encode(f, key=seq in (0, 4)), seq in (0, 4), model, None, keep)
                 for seq, f in enumerate(frames(6))]
     assert receiver.take(0, payloads[0]) and receiver.take(1, payloads[1])
     assert not receiver.take(3, payloads[3])  # 2 was lost
@@ -90,11 +91,11 @@ def test_blocks_only_hand_blocks_to_the_model_over_the_held_frame():
     sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
     encoder = VideoEncoder((64, 64), 20_000, 25)
     model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
-    none = lambda decoded, since, before: np.zeros_like(before)  # noqa: E731
-    every = lambda held, since, before: np.ones_like(before)  # noqa: E731
-    assert receiver.take(0, sender.make(0, encoder.encode(frames(1)[0], key=True), True, none))
-    assert sender.make(1, None, False, none) is None  # nothing changes: nothing to send
-    data = sender.make(1, None, False, every)
+    none = lambda parts, before: np.zeros_like(before)  # noqa: E731
+    every = lambda parts, before: np.ones_like(before)  # noqa: E731
+    assert receiver.take(0, sender.make(0, encoder.encode(frames(1)[0], key=True), True, model, None, none))
+    assert sender.make(1, None, False, model, None, none) is None  # nothing changes: nothing to send
+    data = sender.make(1, None, False, model, None, every)
     assert data is not None and len(data) <= 8  # a flags byte and the blocks: no video
     assert receiver.take(1, data) and receiver.chosen.all()
     np.testing.assert_array_equal(receiver.draw(1, model), model)  # every block the model's
@@ -120,11 +121,11 @@ def test_blend_draws_the_model_in_its_blocks_and_the_video_elsewhere():
     rows, columns = blocks_of(PICTURE)
     chosen = np.zeros((rows, columns), bool)
     chosen[:, : columns // 2] = True
-    out = blend(model, video, chosen, PICTURE)
+    out = blend(model, video_parts(model, video), chosen, PICTURE)
     assert out.shape == model.shape and out.dtype == np.uint8
     assert (out[:, :BLOCK // 2] == 200).all()  # well inside the model's blocks
     assert (np.abs(out[:, -BLOCK // 2:].astype(int) - 40) <= 1).all()  # well inside the video's
-    np.testing.assert_array_equal(blend(model, video, np.ones_like(chosen), PICTURE), model)
+    np.testing.assert_array_equal(blend(model, video_parts(model, video), np.ones_like(chosen), PICTURE), model)
 
 
 def test_blocks_in_a_box_and_a_favoured_model():
@@ -134,5 +135,6 @@ def test_blocks_in_a_box_and_a_favoured_model():
     frame = np.full((PICTURE[1], PICTURE[0], 3), 100, np.uint8)
     model, video = frame + 12, np.full((24, 32, 3), 106, np.uint8)  # the video four times as near (squared)
     before = np.zeros(blocks_of(PICTURE), bool)
-    assert not choose_blocks(model, video, frame, before).any()
-    assert choose_blocks(model, video, frame, before, favour=np.where(inside, 8.0, 1.0)).sum() == 4
+    parts = video_parts(model, video)
+    assert not choose_blocks(model, parts, frame, before).any()
+    assert choose_blocks(model, parts, frame, before, favour=np.where(inside, 8.0, 1.0)).sum() == 4
