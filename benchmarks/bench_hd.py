@@ -105,21 +105,33 @@ class HeldFrames:
         return iter(self._frames)
 
 
-def send(source, face) -> tuple[list, int, float, float]:
+def send(source, face, bitrate: float | None = None) -> tuple[list, int, float, float]:
     """(chunks, frames, CPU seconds to set the session up, CPU seconds of its frames) of fd-send's
-    session over ``source`` (a path or a source)."""
+    session over ``source`` (a path or a source), at fd-send's defaults or ``bitrate`` bit/s."""
     from facedeform.protocol.stream import frame_bytes
     from facedeform.sender.config import SendConfig
     from facedeform.sender.session import SendSession
 
     start = time.process_time()
-    session = SendSession(source, SendConfig(embed_face=False), face=face)
+    session = SendSession(source, SendConfig(embed_face=False, bitrate=bitrate), face=face)
     ready = time.process_time()
     chunks = [frame_bytes(p, session.sealed) for p in session.packets() if p]
     return chunks, session.frame_count, ready - start, time.process_time() - ready
 
 
-def run(height: int, folder: Path) -> dict:
+def with_layer(held: HeldFrames, face, bitrate: float) -> dict:
+    """Sender and receiver frames a second with the picture layer at ``bitrate`` bit/s (the second pass)."""
+    import facedeform
+
+    for _ in range(2):
+        chunks, frames, _, send_cpu = send(held, face, bitrate)
+    start = time.process_time()
+    drawn = sum(1 for _ in facedeform.decode(chunks, face))
+    receive_cpu = time.process_time() - start
+    return {"kbit_s": bitrate / 1000, "sender_fps": frames / send_cpu, "receiver_fps": drawn / receive_cpu}
+
+
+def run(height: int, folder: Path, layer: float | None) -> dict:
     import facedeform
     from facedeform.sender.sources import VideoSource
 
@@ -146,19 +158,23 @@ def run(height: int, folder: Path) -> dict:
     return {"size": f"{SIZES[height][0]}x{height}", "sender_fps": frames / send_cpu,
             "sender_fps_h264_file": frames / (file_setup + file_cpu), "sender_setup_ms": 1000 * setup_cpu,
             "receiver_fps": ours,
-            "h264_fps": theirs, "ratio": ours / theirs, "ms_per_stage": ms}
+            "h264_fps": theirs, "ratio": ours / theirs, "ms_per_stage": ms,
+            "layer": None if layer is None else with_layer(held, face, 1000 * layer)}
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--sizes", type=int, nargs="+", default=list(SIZES), choices=list(SIZES))
     p.add_argument("--out", type=Path, default=Path("results"))
+    p.add_argument("--layer", type=float, metavar="KBPS",
+                   help="also time sender and receiver with the picture layer at this rate (kbit/s; at 1920x1080 "
+                        "the layer pays from about 50)")
     args = p.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
     with tempfile.TemporaryDirectory(prefix="fd-hd-") as tmp:
         for height in args.sizes:
-            rows.append(row := run(height, Path(tmp)))
+            rows.append(row := run(height, Path(tmp), args.layer))
             print(json.dumps(row), file=sys.stderr, flush=True)
     (args.out / "hd.json").write_text(json.dumps(rows, indent=1) + "\n")
     stages = [*STAGES, "rest"]
@@ -169,6 +185,11 @@ def main() -> None:
         print(f"| {r['size']} | {r['sender_fps']:.0f} | {r['sender_fps_h264_file']:.0f} | {r['receiver_fps']:.0f} | "
               f"{r['h264_fps']:.0f} | {r['ratio']:.2f} | "
               + " | ".join(f"{r['ms_per_stage'][s]:.2f}" for s in stages) + " |")
+    for r in rows:
+        if r["layer"] is not None:
+            layer = r["layer"]
+            print(f"with the picture layer at {r['size']}, {layer['kbit_s']:g} kbit/s: sender "
+                  f"{layer['sender_fps']:.1f} frames/s, receiver {layer['receiver_fps']:.1f}")
 
 
 if __name__ == "__main__":
