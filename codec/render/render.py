@@ -291,9 +291,10 @@ class Renderer:
         return image, depth
 
 
-#: What :func:`warm_up` does when it is slow: the first time after an install (10.6 s measured on the
-#: development machine, 0.8 s once cached), numba compiles the rasteriser.
-WARMING_UP = "preparing the renderer's machine code (once after an install: 10-20 s)"
+#: What :func:`warm_up` does when it is slow: the first time after an install (19.4 s measured on the
+#: development machine, 16.5 of it the rasteriser's, 0.7 s once cached), numba compiles the rasteriser
+#: and the picture layer's kernels.
+WARMING_UP = "preparing the renderer's machine code (once after an install: 15-30 s)"
 
 
 def warm_up() -> None:
@@ -305,3 +306,10 @@ def warm_up() -> None:
     # and the whole picture's: a texture drawn as it is (a machine code of its own)
     Renderer(np.array([[0, 1, 2]]), size=(8, 8), material=UNLIT, lights=(), uv=triangle[:, :2] + 0.5,
              texture=np.zeros((2, 2, 3), np.uint8)).render(triangle, camera)
+    # and the picture layer's, which would otherwise stall the first frame a layer packet reaches
+    from facedeform.codec.render.frame_video import blend, blocks_of, choose_blocks, video_parts
+
+    picture = np.zeros((64, 64, 3), np.uint8)
+    parts = video_parts(picture, picture[::2, ::2])
+    chosen = np.zeros(blocks_of((64, 64)), bool)
+    blend(picture, parts, choose_blocks(picture, parts, picture, chosen), (64, 64))
