@@ -396,6 +396,25 @@ def test_the_body_moves_by_its_own_shift_below_the_chin_only():
     np.testing.assert_array_equal(view.render(np.zeros(len(names))), rest)  # and back, exactly
 
 
+def test_a_view_drawing_frame_after_frame_draws_what_a_fresh_view_draws():
+    """The receiver draws only what changes: its rasteriser clears only the last frame's box, the
+    background is warped again only when the camera's or the body's motion changes. Frame after
+    frame, over a still camera and then a moving one (each motion held for a few frames), with the
+    head and the jaw moving throughout, that is pixel for pixel what a view drawing each frame from
+    nothing draws."""
+    face = a_face_with_a_picture()
+    names = GLOBAL_NAMES + BODY_PARAMS
+    rng = np.random.default_rng(5)
+    cameras = [np.zeros(6)] * 4 + [np.r_[0.02 * k, -0.01 * k, 0.01 * k, 0.5 * k, 0.0, 0.0] for k in (1, 1, 2)] \
+        + [np.r_[0.04, -0.02, 0.02, 1.0, 0.05, 0.02]] * 2 + [np.zeros(6)]
+    view = PictureView(header(face, names), face, (200, 160))
+    for camera in cameras:
+        head = np.r_[rng.uniform(0, 20), rng.normal(0, 4, 3), rng.normal(0, 0.03, 3)]  # theta, rotation, shift
+        params = np.r_[head, camera]
+        drawn = view.render(params)
+        np.testing.assert_array_equal(drawn, PictureView(header(face, names), face, (200, 160)).render(params))
+
+
 def test_absurd_body_shifts_from_a_stream_still_draw_a_picture():
     """A stream's body values far past any picture (its steps times the largest index) draw the
     picture's edges repeated, with the camera still or moving: no error, the picture's size."""
