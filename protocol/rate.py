@@ -68,17 +68,20 @@ SLACK = 0.9  # the zone narrows again only once the window costs less than this 
 class RateKeeper:
     """The encoder's dead zone for each next frame, so that the parameters' bits over any
     WINDOW seconds stay within ``bits_per_second``: wider while the window costs more, back
-    towards ``narrowest`` (the call's own dead zone) once it costs less than SLACK of it."""
+    towards ``narrowest`` (the call's own dead zone) once it costs less than SLACK of it. The
+    call's first frames are held to a whole window's budget too, not to their own few frames' (which
+    the first keyframe alone overspent, widening the dead zone of a call far below its rate)."""
 
     def __init__(self, bits_per_second: float, fps: float, narrowest: float) -> None:
-        self._budget = bits_per_second / fps  # bits a frame
-        self._recent: deque[int] = deque(maxlen=max(1, round(WINDOW * fps)))
+        window = max(1, round(WINDOW * fps))
+        self._allowed = window * bits_per_second / fps  # bits a window
+        self._recent: deque[int] = deque(maxlen=window)
         self._narrowest = self.dead_zone = narrowest
 
     def step(self, bits: int) -> float:
         """The dead zone for the next frame, after one that cost ``bits`` (0 while its packet waits)."""
         self._recent.append(bits)
-        spent, allowed = sum(self._recent), self._budget * len(self._recent)
+        spent, allowed = sum(self._recent), self._allowed
         if spent > allowed:
             self.dead_zone = min(max(WIDEST, self._narrowest), self.dead_zone + MOVE)
         elif spent < SLACK * allowed:
