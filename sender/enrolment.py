@@ -24,7 +24,6 @@ from facedeform.codec.face_file.format import Face, decode_face, personal_face
 from facedeform.codec.model.face_model import BaseFace, ReferencePicture, load_base_face, mouth_vertices, normalise
 from facedeform.codec.model.head_pose import image_to_face_axes
 from facedeform.codec.model.motion_basis import OVER
-from facedeform.codec.render.picture import Placement
 from facedeform.common.errors import InputError, NoFaceError
 from facedeform.common.parameters import MAX_COMPONENTS
 from facedeform.sender.calibrate import lip_gap
@@ -181,8 +180,7 @@ def _learn(video, face: BaseFace, neutral: int, patterns: int, over: str, second
     tracker = _Watched(FaceTracker(), None if rings is None else rings.add)
     update = None if on_frame is None else (lambda n: on_frame(n, total))
     residual, vertices = residuals(islice(source.frames(), limit), tracker, face, source.fps, over, neutral, update)
-    pixels = None if face.picture is None else Placement.from_matrix(face.picture.projection).scale
-    motion = learn_motion(residual, vertices, patterns, over, pixels) if patterns else None
+    motion = learn_motion(residual, vertices, patterns, over) if patterns else None
     return motion, None if rings is None else rings.weights(), len(residual)
 
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import BaseFace
-from facedeform.codec.model.motion_basis import MotionBasis, learn_basis, reach_steps
+from facedeform.codec.model.motion_basis import MotionBasis, learn_basis
 from facedeform.sender.analysis import FaceAnalyser, Smoothing
 
 #: Frames with a face needed per pattern. Held out on the dev clips (a basis learned from each
@@ -54,12 +54,11 @@ def residuals(frames: Iterable[np.ndarray], tracker, face: BaseFace, fps: float,
 
 
 def learn_motion(residual: np.ndarray, vertices: np.ndarray, components: int,
-                 over: str = "rest", face_pixels: float | None = None) -> MotionBasis | None:
+                 over: str = "rest") -> MotionBasis | None:
     """The basis of ``components`` patterns, or of as many as the frames allow (FRAMES_PER_PATTERN
     each), or None when they allow none: on the dev clips every pattern up to the limit pays its
-    bits, so a short clip gets fewer patterns rather than none. ``face_pixels``: the face's height
-    where it is drawn (its reference picture's), which bounds the steps its patterns need."""
+    bits, so a short clip gets fewer patterns rather than none."""
     components = min(components, len(residual) // FRAMES_PER_PATTERN)
     if components < 1:
         return None
-    return learn_basis(residual, vertices, components, over, reach_steps(face_pixels))
+    return learn_basis(residual, vertices, components, over)

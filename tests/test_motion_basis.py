@@ -120,24 +120,6 @@ def test_each_pattern_is_stored_as_finely_as_its_coefficients_need():
     assert len(finest) > len(data)
 
 
-def test_a_small_face_is_stored_in_steps_of_its_pixels():
-    """A face 100 pixels tall in its picture needs steps of a quarter pixel at most, 200 per unit of a
-    pattern's largest coefficient instead of 1024; a face 2000 pixels tall keeps 1024 (1/2048 of its height)."""
-    from facedeform.codec.model.motion_basis import REACH_STEPS, reach_steps
-
-    assert reach_steps(None) == REACH_STEPS and reach_steps(2000.0) == REACH_STEPS and reach_steps(100.0) == 200
-    residuals, vertices, _ = planted()
-    residuals = residuals * 0.1
-    fine, coarse = learn_basis(residuals, vertices, 3), learn_basis(residuals, vertices, 3, reach=reach_steps(100.0))
-    np.testing.assert_array_equal(coarse.vectors, fine.vectors)
-    assert np.all(coarse.steps <= fine.steps) and coarse.steps.sum() < fine.steps.sum()
-    coefficients = np.linalg.lstsq(fine.vectors.reshape(3, -1).T, residuals.reshape(len(residuals), -1).T,
-                                   rcond=None)[0]
-    back = decode_face(encode_face(dataclasses.replace(load_base_face(), motion=coarse))).motion
-    error = np.abs(back.vectors - coarse.vectors).max(axis=(1, 2)) * np.abs(coefficients).max(axis=1)
-    assert np.all(error * 100 <= 0.25 + 1e-12)  # in pixels of the 100-pixel face, at the largest coefficient
-
-
 def _with_motion_bytes(data: bytes, change) -> bytes:
     """The face file with its packed mesh and basis changed by ``change(raw, start of the basis)``."""
     n = int.from_bytes(data[8:12], "little")

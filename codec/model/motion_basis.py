@@ -35,17 +35,6 @@ MOST_STEPS = 127
 #: rounding at the default level (steps of 1/250).
 REACH_STEPS = 1024
 LEAST_STEPS = 4
-#: A face drawn in a reference picture needs no finer steps than this many per pixel of its height (a
-#: vertex then off by at most a quarter pixel at a pattern's largest coefficient): on the dev clips'
-#: 256x256 crops (faces 120-173 pixels) the face files shrank from 13.4 to 11.9 KB on average, the
-#: whole picture at fd-send's defaults within 0.06 dB on every clip (mean +0.01).
-STEPS_PER_PIXEL = 2
-
-
-def reach_steps(face_pixels: float | None) -> int:
-    """Steps per unit of a pattern's largest coefficient for a face ``face_pixels`` tall where it is
-    drawn (None: not known, a face without a reference picture): REACH_STEPS, or fewer for a small face."""
-    return REACH_STEPS if face_pixels is None else int(min(REACH_STEPS, np.ceil(STEPS_PER_PIXEL * face_pixels)))
 
 
 @dataclass(frozen=True)
@@ -86,12 +75,10 @@ class MotionBasis:
         return out.reshape(-1, MAX_COMPONENTS)
 
 
-def learn_basis(residuals: np.ndarray, vertices: np.ndarray, components: int, over: str = "rest",
-                reach: int = REACH_STEPS) -> MotionBasis:
+def learn_basis(residuals: np.ndarray, vertices: np.ndarray, components: int, over: str = "rest") -> MotionBasis:
     """The ``components`` patterns that best explain ``residuals`` (n, k, 3) of the landmarks
     ``vertices`` (k,) in the least-squares sense (uncentred: coefficients 0 are what the
-    residuals are ``over``), each stored in ``reach`` steps per unit of its largest coefficient
-    (:func:`reach_steps`).
+    residuals are ``over``).
 
     Signs are fixed so that each pattern's most-moved vertex moves towards +y or, failing that, +x,
     so that learning twice from the same data gives the same file.
@@ -109,6 +96,6 @@ def learn_basis(residuals: np.ndarray, vertices: np.ndarray, components: int, ov
         top = p[np.argmax(np.linalg.norm(p, axis=1))]
         sign = np.sign(top[1]) if abs(top[1]) > 1e-12 else np.sign(top[0]) or 1.0
         out.append(sign * p / np.linalg.norm(top))
-        largest = np.abs(u[:, i]).max() * s[i] * np.linalg.norm(top)  # its largest coefficient, in these units
-        steps.append(int(np.clip(np.ceil(reach * largest), LEAST_STEPS, MOST_STEPS)))
+        reach = np.abs(u[:, i]).max() * s[i] * np.linalg.norm(top)  # its largest coefficient, in these units
+        steps.append(int(np.clip(np.ceil(REACH_STEPS * reach), LEAST_STEPS, MOST_STEPS)))
     return MotionBasis(np.asarray(vertices, dtype=np.int64), np.stack(out), over, np.array(steps))
