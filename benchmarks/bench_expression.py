@@ -14,8 +14,8 @@ head pose and global motion as sent):
 
 Reported per clip: kbit/s after the header; PSNR (mean of R, G, B) and SSIM of ours, the
 oracle and the frozen face, and ``gap``, the oracle's PSNR less ours (dB); the mouth opening's
-swing (5th to 95th percentile) and correlation and the eye opening's correlation, each against
-the original, tracked by the same tracker on the original, ours and the oracle; whether the
+swing (5th to 95th percentile) and correlation and the eye opening's correlation and swing (a
+blink drawn shallower than the speaker's shows only in the swing), each against the original, tracked by the same tracker on the original, ours and the oracle; whether the
 speaker blinks. ``fit swing``: the same swing on the meshes themselves (deformed by the
 unquantised fit against the target), which tells the fit's loss from the coding's and the
 drawing's.
@@ -85,6 +85,7 @@ def run(clip, face, work: Path, options: dict) -> dict:
             row[f"swing_{name}"] = metrics.opening_swing(ref, dec)
             row[f"opening_corr_{name}"] = metrics.opening_correlation(ref, dec)
             row[f"eye_corr_{name}"] = metrics.eye_correlation(ref, dec)
+            row[f"eye_swing_{name}"] = metrics.eye_swing(ref, dec)
     row["gap"] = row["psnr_oracle"] - row["psnr_ours"]
     row["fit_swing"] = metrics.swing(fit_gap) / metrics.swing(target_gap)
     return row
@@ -98,7 +99,9 @@ TABLE = (("kbit/s", "kbit_per_s", "{:.2f}"), ("PSNR ours", "psnr_ours", "{:.2f}"
          ("mouth corr ours", "opening_corr_ours", "{:.2f}"),
          ("oracle", "opening_corr_oracle", "{:.2f}"), ("eye corr ours", "eye_corr_ours", "{:.2f}"),
          ("uncoded", "eye_corr_uncoded", "{:.2f}"),
-         ("oracle", "eye_corr_oracle", "{:.2f}"), ("blinks", "blinks", "{}"))
+         ("oracle", "eye_corr_oracle", "{:.2f}"), ("eye swing ours", "eye_swing_ours", "{:.2f}"),
+         ("uncoded", "eye_swing_uncoded", "{:.2f}"), ("oracle", "eye_swing_oracle", "{:.2f}"),
+         ("blinks", "blinks", "{}"))
 
 
 def main() -> None:

@@ -94,7 +94,16 @@ def opening_swing(reference: np.ndarray, decoded: np.ndarray) -> float:
     """How far the decoded mouth opens and closes over how far the original's does: the ratio of
     their mouth openings' swings (5th to 95th percentile, frames with a face in both); 1 is the
     speaker's own amplitude, below 1 a muted mouth."""
-    a, b = lip_gap(np.asarray(reference)[..., :2]), lip_gap(np.asarray(decoded)[..., :2])
+    return _swing_ratio(lip_gap(np.asarray(reference)[..., :2]), lip_gap(np.asarray(decoded)[..., :2]))
+
+
+def eye_swing(reference: np.ndarray, decoded: np.ndarray) -> float:
+    """As :func:`opening_swing`, of the eyes' opening (both eyes' mean): below 1, blinks drawn
+    shallower than the speaker's (which the correlation, blind to scale, does not show)."""
+    return _swing_ratio(eye_opening(np.asarray(reference)[..., :2]), eye_opening(np.asarray(decoded)[..., :2]))
+
+
+def _swing_ratio(a: np.ndarray, b: np.ndarray) -> float:
     both = ~(np.isnan(a) | np.isnan(b))
     if both.sum() < 3:
         return float("nan")

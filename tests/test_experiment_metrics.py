@@ -8,6 +8,7 @@ from facedeform.experiment.metrics import (
     akd,
     blinks,
     eye_correlation,
+    eye_swing,
     ms_ssim,
     opening_correlation,
     opening_swing,
@@ -82,6 +83,18 @@ def test_a_blink_is_seen_and_an_open_stare_does_not_follow_it():
     assert blinks(ref) and not blinks(stare)
     assert eye_correlation(ref, ref) == pytest.approx(1.0)
     assert np.isnan(eye_correlation(ref, stare))  # a face that never blinks follows no blink
+
+
+def test_a_blink_half_as_deep_swings_half_as_far():
+    ref = track(t=40)
+    ref[:, [159, 145]] = [[160.0, 144.0], [160.0, 150.0]]
+    ref[:, [386, 374]] = [[240.0, 144.0], [240.0, 150.0]]
+    shallow = ref.copy()
+    ref[:, [159, 386], 1] = np.linspace(144.0, 150.0, 40)[:, None]  # the lids close over the clip
+    shallow[:, [159, 386], 1] = np.linspace(144.0, 147.0, 40)[:, None]  # half as far
+    assert eye_swing(ref, ref) == pytest.approx(1.0)
+    assert eye_swing(ref, shallow) == pytest.approx(0.5, abs=0.02)
+    assert eye_correlation(ref, shallow) == pytest.approx(1.0)
 
 
 def test_psnr_and_ssim_inside_the_mask():
