@@ -14,11 +14,11 @@ head pose and global motion as sent):
 
 Reported per clip: kbit/s after the header; PSNR (mean of R, G, B) and SSIM of ours, the
 oracle and the frozen face, and ``gap``, the oracle's PSNR less ours (dB); the mouth opening's
-swing (5th to 95th percentile) and correlation and the eye opening's correlation and swing (a
-blink drawn shallower than the speaker's shows only in the swing), each against the original, tracked by the same tracker on the original, ours and the oracle; whether the
-speaker blinks. ``fit swing``: the same swing on the meshes themselves (deformed by the
-unquantised fit against the target), which tells the fit's loss from the coding's and the
-drawing's.
+swing (5th to 95th percentile) and correlation, and the eye opening's correlation and swing (a
+blink drawn shallower than the speaker's shows only in the swing), each against the original,
+tracked by the same tracker on the original, ours and the oracle; whether the speaker blinks.
+``fit swing``: the same swing on the meshes themselves (deformed by the unquantised fit against
+the target), which tells the fit's loss from the coding's and the drawing's.
 
     .venv/bin/python benchmarks/bench_expression.py /path/to/dev/*.mp4 /path/to/dev/*.mpg --out results/
 """

@@ -99,3 +99,26 @@ def test_a_face_that_would_fold_is_fitted_again_without_folding(model, mouth):
             return np.linalg.norm(deformer.deform_extended(p)[fit.lower] - target[fit.lower])
 
         assert error(extended_params(names, params)) <= error(sent) + 1e-12
+
+
+def test_a_speaker_whose_tracked_blink_stays_half_open_has_it_drawn_shut():
+    """The tracker brings some speakers' lids only partly together in a full blink (the bundled clip's
+    to 0.64 of their rest gap): once such a blink is seen, the deepest closing is drawn shut and the
+    gain that does so applies from then on; closings never deeper than a blink's keep LID_GAIN."""
+    from facedeform.sender.fit import BLINK_GAP, LID_GAIN
+
+    deformer = Deformer(load_base_face())
+    rest = deformer.blend(extended_params((), np.zeros(0)))
+
+    def closed(fraction: float) -> np.ndarray:  # each upper-lid landmark moved that far to its lower partner
+        target = rest.copy()
+        for upper, lower in ModelFit(deformer)._lid_pairs:
+            target[upper] += fraction * (rest[lower] - rest[upper])
+        return target
+
+    mild = ModelFit(deformer)
+    np.testing.assert_allclose(mild.lids(closed(0.15), (), np.zeros(0)), LID_GAIN * 0.15, atol=1e-9)
+    assert 1 - 0.15 >= BLINK_GAP
+    blinking = ModelFit(deformer)
+    np.testing.assert_allclose(blinking.lids(closed(0.36), (), np.zeros(0)), 1.0, atol=1e-9)  # shut
+    np.testing.assert_allclose(blinking.lids(closed(0.15), (), np.zeros(0)), 0.15 / 0.36, atol=1e-9)
