@@ -109,16 +109,15 @@ def test_a_speaker_whose_tracked_blink_stays_half_open_has_it_drawn_shut():
 
     deformer = Deformer(load_base_face())
     rest = deformer.blend(extended_params((), np.zeros(0)))
+    mild, blinking = ModelFit(deformer), ModelFit(deformer)
 
     def closed(fraction: float) -> np.ndarray:  # each upper-lid landmark moved that far to its lower partner
         target = rest.copy()
-        for upper, lower in ModelFit(deformer)._lid_pairs:
+        for upper, lower in mild._lid_pairs:
             target[upper] += fraction * (rest[lower] - rest[upper])
         return target
 
-    mild = ModelFit(deformer)
     np.testing.assert_allclose(mild.lids(closed(0.15), (), np.zeros(0)), LID_GAIN * 0.15, atol=1e-9)
     assert 1 - 0.15 >= BLINK_GAP
-    blinking = ModelFit(deformer)
     np.testing.assert_allclose(blinking.lids(closed(0.36), (), np.zeros(0)), 1.0, atol=1e-9)  # shut
     np.testing.assert_allclose(blinking.lids(closed(0.15), (), np.zeros(0)), 0.15 / 0.36, atol=1e-9)

@@ -292,14 +292,21 @@ def _block_errors(model, up, coarse, agree, frame, rows, columns):  # pragma: no
     return by_model, by_video
 
 
+def _carried_parts(model: np.ndarray, frame: np.ndarray, since: int,
+                   carry: Callable[[np.ndarray, int], np.ndarray] | None) -> VideoParts:
+    """The video_parts of the layer's video ``frame`` (which shows frame ``since``) over ``model``, the
+    frame moved by ``carry`` to the one ``model`` draws (None: held still): what the sender's choice
+    and both ends' drawing see."""
+    return video_parts(model, frame, None if carry is None else carry(frame, since))
+
+
 class VideoLayer:
     """What both ends hold of the layer: the video's decoder, its last frame and the model's
     blocks. The receiver reads payloads with :meth:`take`, the sender makes them with
     :meth:`make`; both draw with :meth:`draw`. A payload comes before its frame is drawn and
     holds from that frame on; frames before it, drawn later (a receiver's buffer), are drawn as
     before it. A held video frame is drawn as ``carry`` (given to :meth:`draw`) moves it from its
-    own frame to the one drawn: the face's motion since, which the parameters carry. The sender's
-    draw of the frame it just made a payload for reuses the video's parts its choice was made with."""
+    own frame to the one drawn: the face's motion since, which the parameters carry."""
 
     def __init__(self, picture_size: tuple[int, int]) -> None:
         self.picture_size = picture_size
@@ -309,8 +316,6 @@ class VideoLayer:
         #: (first frame, the video's frame or None for the model's picture alone, chosen blocks,
         #: the frame the video's frame shows)
         self._states: deque[tuple[int, np.ndarray | None, np.ndarray, int]] = deque(maxlen=HELD)
-        #: (frame, model's picture, video frame, the frame it shows, video_parts) of the last make
-        self._made: tuple[int, np.ndarray, np.ndarray, int, VideoParts] | None = None
 
     def take(self, seq: int, payload: bytes) -> bool:
         """Read the payload of frame ``seq``; False if it cannot be used (damaged, or no key since a
@@ -341,9 +346,7 @@ class VideoLayer:
         if frame is None:
             raise ValueError("no frame to hold" if video is None else "the layer's own video did not decode")
         since = self._since if video is None else seq
-        parts = video_parts(model, frame, None if carry is None else carry(frame, since))
-        self._made = (seq, model, frame, since, parts)
-        chosen = choose(parts, self.chosen)
+        chosen = choose(_carried_parts(model, frame, since, carry), self.chosen)
         if video is None and np.array_equal(chosen, self.chosen):
             return None
         start = self._none if key else self.chosen
@@ -377,11 +380,7 @@ class VideoLayer:
         _, frame, chosen, since = self._states[0]
         if frame is None:
             return model
-        made = self._made
-        if made is not None and made[0] == seq and made[1] is model and made[2] is frame and made[3] == since:
-            return blend(model, made[4], chosen, self.picture_size)
-        return blend(model, video_parts(model, frame, None if carry is None else carry(frame, since)), chosen,
-                     self.picture_size)
+        return blend(model, _carried_parts(model, frame, since, carry), chosen, self.picture_size)
 
     def _decode(self, video: bytes, key: bool) -> np.ndarray | None:
         if key or self._decoder is None:
