@@ -8,12 +8,17 @@ decodes what is left. Prints, per redundancy, the bits per frame (header exclude
 frames (decoded, not concealed) in % of all, mean over the clips and 5 seeds; depth 0 is the
 stream without copies.
 
-``bursts``: fd-send's stream (one packet carried again) under the loss patterns of a real
-link, in process (not paced over a socket): random loss, fixed bursts of 2, 3 and 8 datagrams,
-and Gilbert-Elliott loss (a good state that loses nothing and a bad one that loses everything,
-bursts of 3 on average), each also with 5 % of neighbouring datagrams swapped and 2 %
+``bursts``: fd-send's stream over udp:// (a frame a datagram, three packets carried again, a
+keyframe every 0.24 s; ``--frames-per-packet``, ``--copies`` and ``--key-interval`` change them)
+under the loss patterns of a real link, in process (not paced over a socket): random loss, fixed
+bursts of 2, 3 and 8 datagrams, and Gilbert-Elliott loss (a good state that loses nothing and a
+bad one that loses everything, bursts of 3 on average), each also with 5 % of neighbouring datagrams swapped and 2 %
 duplicated. Prints the good frames in % and the longest freeze (frames in a row not good),
 mean and worst over the clips and seeds.
+
+``udp``: the same patterns (datagrams also reordered and duplicated) over real loopback UDP to
+``fd-recv --listen``, sent as fast as a live call sends them; fd-recv's ``--dump`` says which frames
+it drew from data. A call's length per clip and seed and pattern (``--seeds``, 5 by default).
 
 ``header``: bits per frame that repeating the header before every Nth keyframe costs, for
 each layout's dump (``DUMP.npz``, ``DUMP.paper.npz``, ``DUMP.full.npz``).
@@ -24,31 +29,36 @@ junk datagrams at rising rates; prints the real frames delivered at each rate.
 
 import argparse
 import json
+import socket
 import subprocess
 import sys
 import tempfile
+import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from facedeform.codec.model.face_model import load_base_face
 from facedeform.protocol.encoder import COPIES, Datagrams
 from facedeform.protocol.stream import DatagramDecoder, Frame, PacketEncoder
-from facedeform.sender.session import first_basis, read_dump, stream_header
+from facedeform.sender.config import DATAGRAM_FRAMES
+from facedeform.sender.session import DATAGRAM_KEYS, first_basis, read_dump, stream_header
 
 ROOT = Path(__file__).resolve().parents[1]
 LOSSES = (0.0, 0.01, 0.05, 0.10, 0.20)
 
 
-def datagrams(path: Path, copies: int, header_every: int = 0, eager: int = 0,
-              key_interval: int | None = None) -> tuple[list[bytes], int, int]:
+def datagrams(path: Path, copies: int, header_every: int = 0, eager: int = 0, keys: float = 1.0,
+              key_interval: int | None = None, per_packet: int = 2) -> tuple[list[bytes], int, int]:
     """(datagrams, header packet bytes, frames) of fd-send's stream of a dump, the header sent once
-    unless asked; ``key_interval``: frames between keyframes instead of fd-send's second."""
+    unless asked; a keyframe every ``keys`` seconds or ``key_interval`` frames."""
     names, fps, params, found = read_dump(path)
-    header = stream_header(names, fps, "00" * 32, basis=first_basis(names, fps, list(zip(params, found))))
+    basis = first_basis(names, fps, list(zip(params, found)))
+    header = stream_header(names, fps, load_base_face().content_id, basis=basis, keys=keys)
     if key_interval is not None:
         header = replace(header, key_interval=key_interval)
-    enc = PacketEncoder(header, 2)
+    enc = PacketEncoder(header, per_packet)
     head = enc.header()
     pack = Datagrams(head[0], copies, header_every, eager)
     out = pack.add(head)
@@ -85,17 +95,22 @@ def shuffled(stream: list[bytes], rng: np.random.Generator, swap: float, duplica
     return [d for d in out for _ in range(2 if rng.random() < duplicate else 1)]
 
 
+def arriving(stream: list[bytes], lost: np.ndarray, rng: np.random.Generator | None = None,
+             swap: float = 0.0, duplicate: float = 0.0) -> list[bytes]:
+    """The datagrams that arrive when the body datagrams ``lost`` are dropped (never the header or
+    the end mark, sent twice) and the rest ``shuffled`` if ``rng`` is given."""
+    body = [i for i in range(len(stream)) if i and i < len(stream) - 2]
+    dropped = {body[i] for i in np.flatnonzero(lost[:len(body)])}
+    kept = [d for i, d in enumerate(stream) if i not in dropped]
+    return kept if rng is None else kept[:1] + shuffled(kept[1:], rng, swap, duplicate)
+
+
 def frames_good(stream: list[bytes], lost: np.ndarray, frames: int, rng: np.random.Generator | None = None,
                 swap: float = 0.0, duplicate: float = 0.0) -> np.ndarray:
     """(frames,) bool: which frames the receiver drew from data (not concealed, not missing) when
     the body datagrams ``lost`` are dropped and the rest arrive ``shuffled``."""
-    body = [i for i in range(len(stream)) if i and i < len(stream) - 2]  # not the header, not the end
-    dropped = {body[i] for i in np.flatnonzero(lost[:len(body)])}
-    kept = [d for i, d in enumerate(stream) if i not in dropped]
-    if rng is not None:
-        kept = kept[:1] + shuffled(kept[1:], rng, swap, duplicate)
     dec, good = DatagramDecoder(), np.zeros(frames, bool)
-    for d in kept:
+    for d in arriving(stream, lost, rng, swap, duplicate):
         for e in dec.receive(d):
             if isinstance(e, Frame) and e.seq < frames:
                 good[e.seq] = not e.concealed
@@ -110,27 +125,36 @@ def longest_freeze(good: np.ndarray) -> int:
     return longest
 
 
-def bench_bursts(dumps: list[Path], seeds: int, key_interval: int | None = None, copies: int = COPIES) -> None:
-    patterns = [("random 5 %", 0.05, "fixed", 1), ("random 10 %", 0.10, "fixed", 1),
-                ("random 20 %", 0.20, "fixed", 1), ("bursts of 2, 5 %", 0.05, "fixed", 2),
-                ("bursts of 3, 5 %", 0.05, "fixed", 3),
-                ("bursts of 8, 5 %", 0.05, "fixed", 8), ("Gilbert-Elliott 5 %, bursts of 3", 0.05, "ge", 3),
-                ("Gilbert-Elliott 10 %, bursts of 3", 0.10, "ge", 3)]
-    streams = [datagrams(path, copies, key_interval=key_interval) for path in dumps]
+#: The lossy-link issue's patterns: (label, share of datagrams lost, "fixed" bursts or Gilbert-Elliott "ge",
+#: burst length).
+PATTERNS = [("random 5 %", 0.05, "fixed", 1), ("random 10 %", 0.10, "fixed", 1),
+            ("random 20 %", 0.20, "fixed", 1), ("bursts of 2, 5 %", 0.05, "fixed", 2),
+            ("bursts of 3, 5 %", 0.05, "fixed", 3),
+            ("bursts of 8, 5 %", 0.05, "fixed", 8), ("Gilbert-Elliott 5 %, bursts of 3", 0.05, "ge", 3),
+            ("Gilbert-Elliott 10 %, bursts of 3", 0.10, "ge", 3)]
+
+
+def pattern_loss(count: int, rate: float, kind: str, burst: int, rng: np.random.Generator) -> np.ndarray:
+    return lose(count, rate, burst, rng) if kind == "fixed" else lose_gilbert_elliott(count, rate, burst, rng)
+
+
+def bench_bursts(dumps: list[Path], seeds: int, key_interval: int | None = None, copies: int = COPIES,
+                 per_packet: int = DATAGRAM_FRAMES) -> None:
+    streams = [datagrams(path, copies, keys=DATAGRAM_KEYS, key_interval=key_interval, per_packet=per_packet)
+               for path in dumps]
     bits = np.mean([8 * (sum(map(len, stream)) - head) / n for stream, head, n in streams])
-    print(f"{bits:.1f} bits a frame, header excluded, a keyframe every {key_interval or 'second'}, "
-          f"{copies} copies\n")
+    print(f"{bits:.1f} bits a frame, header excluded, a keyframe every {key_interval or f'{DATAGRAM_KEYS:g} s'}, "
+          f"{copies} copies, {per_packet} frames a packet\n")
     print("| pattern | good frames % | + reordered, duplicated | longest freeze, mean (worst) "
           "| + reordered, duplicated |")
     print("|---|---|---|---|---|")
-    for label, rate, kind, burst in patterns:
+    for label, rate, kind, burst in PATTERNS:
         good: dict[bool, list[float]] = {False: [], True: []}
         freeze: dict[bool, list[int]] = {False: [], True: []}
         for stream, _, n in streams:
             for seed in range(seeds):
                 rng = np.random.default_rng(seed)
-                lost = lose(len(stream), rate, burst, rng) if kind == "fixed" else \
-                    lose_gilbert_elliott(len(stream), rate, burst, rng)
+                lost = pattern_loss(len(stream), rate, kind, burst, rng)
                 for mixed in (False, True):
                     g = frames_good(stream, lost, n, np.random.default_rng(seed + 1000) if mixed else None,
                                     0.05, 0.02)
@@ -138,6 +162,51 @@ def bench_bursts(dumps: list[Path], seeds: int, key_interval: int | None = None,
                     freeze[mixed].append(longest_freeze(g))
         print(f"| {label} | {np.mean(good[False]):.1f} | {np.mean(good[True]):.1f} | {np.mean(freeze[False]):.1f} "
               f"({max(freeze[False])}) | {np.mean(freeze[True]):.1f} ({max(freeze[True])}) |", flush=True)
+
+
+def received_over_udp(kept: list[bytes], frames: int, seconds: float, tmp: Path) -> np.ndarray:
+    """(frames,) bool: the frames ``fd-recv --listen udp://`` drew from data when the datagrams ``kept``
+    reach it over loopback, sent evenly over ``seconds`` as a live call sends them."""
+    dump = tmp / "recv.npz"
+    proc = subprocess.Popen([sys.executable, "-m", "facedeform.receiver.cli", "--listen", "udp://127.0.0.1:0",
+                             "-o", str(tmp / "out.y4m"), "--size", "64", "--dump", str(dump), "--timeout", "3"],
+                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=ROOT, bufsize=0)
+    port = int(proc.stderr.readline().decode().rsplit(":", 1)[1])
+    gap, start = seconds / len(kept), time.perf_counter()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        for i, d in enumerate(kept):
+            time.sleep(max(0.0, start + i * gap - time.perf_counter()))
+            sock.sendto(d, ("127.0.0.1", port))
+    err = proc.communicate(timeout=120)[1].decode()
+    if proc.returncode:
+        raise SystemExit(f"fd-recv failed: {err.strip().splitlines()[-1:]}")
+    good = np.zeros(frames, bool)
+    with np.load(dump) as d:
+        seq, concealed = d["seq"], d["concealed"]
+    inside = seq < frames
+    good[seq[inside]] = ~concealed[inside]
+    return good
+
+
+def bench_udp(dumps: list[Path], seeds: int) -> None:
+    """The bursts patterns, datagrams reordered and duplicated as in ``bursts``, sent over loopback UDP
+    to fd-recv paced as a live call; its --dump says which frames it drew from data."""
+    streams = [datagrams(path, COPIES, keys=DATAGRAM_KEYS, per_packet=DATAGRAM_FRAMES) for path in dumps]
+    fps = [read_dump(path)[1] for path in dumps]
+    print("| pattern | good frames % | longest freeze, mean (worst) |")
+    print("|---|---|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, rate, kind, burst in PATTERNS:
+            good, freeze = [], []
+            for (stream, _, n), rate_fps in zip(streams, fps):
+                for seed in range(seeds):
+                    rng = np.random.default_rng(seed)
+                    kept = arriving(stream, pattern_loss(len(stream), rate, kind, burst, rng),
+                                    np.random.default_rng(seed + 1000), 0.05, 0.02)
+                    g = received_over_udp(kept, n, n / rate_fps, Path(tmp))
+                    good.append(100 * g.mean())
+                    freeze.append(longest_freeze(g))
+            print(f"| {label} | {np.mean(good):.1f} | {np.mean(freeze):.1f} ({max(freeze)}) |", flush=True)
 
 
 def bench_loss(dumps: list[Path], seeds: int) -> None:
@@ -204,18 +273,22 @@ def bench_flood(rates: list[int], seconds: float) -> None:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("what", choices=("loss", "bursts", "header", "flood"))
+    p.add_argument("what", choices=("loss", "bursts", "udp", "header", "flood"))
     p.add_argument("dumps", nargs="*", type=Path, help="fd-send --dump files (the default layout's)")
     p.add_argument("--seeds", type=int, default=5)
-    p.add_argument("--key-interval", type=int, help="bursts: frames between keyframes (default: a second's)")
+    p.add_argument("--key-interval", type=int, help="bursts: frames between keyframes (default: fd-send's over udp://)")
     p.add_argument("--copies", type=int, default=COPIES, help="bursts: frames packets each datagram carries again")
+    p.add_argument("--frames-per-packet", type=int, default=DATAGRAM_FRAMES,
+                   help="bursts: frames a packet (and datagram) holds (default: fd-send's over udp://)")
     p.add_argument("--rates", type=int, nargs="*", default=[0, 2000, 5000, 10000, 20000, 40000])
     p.add_argument("--seconds", type=float, default=6.0, help="flood: length of the call")
     args = p.parse_args()
     if args.what == "loss":
         bench_loss(args.dumps, args.seeds)
     elif args.what == "bursts":
-        bench_bursts(args.dumps, args.seeds, args.key_interval, args.copies)
+        bench_bursts(args.dumps, args.seeds, args.key_interval, args.copies, args.frames_per_packet)
+    elif args.what == "udp":
+        bench_udp(args.dumps, args.seeds)
     elif args.what == "header":
         bench_header(args.dumps)
     else:

@@ -44,9 +44,9 @@ PICTURE_PIECE = 1024  # bytes of a picture layer's payload per packet (and datag
 #: (docs/bitstream.md, "Bursts"), for 150, 214 and 264 bits a frame.
 COPIES = 3
 #: Keyframes: the header goes again before the first HEADER_EAGER, then every so many that its repeats
-#: cost at most REPEAT_BITS a keyframe (200 bit/s with a keyframe every 0.4 s, fd-send over UDP), and at
+#: cost at most REPEAT_BITS a keyframe (333 bit/s with a keyframe every 0.24 s, fd-send over UDP), and at
 #: least every HEADER_EVERY-th: the default layout's 49-byte header every 6th keyframe (a late joiner
-#: waits 2.4 s), a speaker's own 213-byte one every 24th (9.6 s), a kilobyte header every 30th (12 s).
+#: waits 1.4 s), a speaker's own 213-byte one every 24th (5.8 s), a kilobyte header every 30th (7.2 s).
 HEADER_EAGER, HEADER_EVERY, REPEAT_BITS = 10, 30, 80
 _MAX_INDEX = 1 << 30  # quantised values beyond this are a caller's bug (NaN, wrong units)
 MAX_DEAD_ZONE = 4.0  # steps: beyond this a coarser quality level costs fewer bits for the same error

@@ -9,7 +9,16 @@ from facedeform.common.cli import ArgumentParser, check_output, number, run_main
 from facedeform.protocol.quantise import DEFAULT_QUALITY
 from facedeform.protocol.secure import TAG_BITS
 from facedeform.sender.analysis import LAYOUT_NAMES
-from facedeform.sender.config import BITRATE, LIMITS, QUALITY_RATES, SPEAKER_RATE, SendConfig, default
+from facedeform.sender.config import (
+    BITRATE,
+    DATAGRAM_FRAMES,
+    LIMITS,
+    QUALITY_RATES,
+    SPEAKER_RATE,
+    STREAM_FRAMES,
+    SendConfig,
+    default,
+)
 
 EPILOG = """examples:
   fd-send talk.mp4 | fd-recv -o out.mp4
@@ -108,7 +117,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--frames-per-packet", type=number(*LIMITS["frames_per_packet"], kind=int),
                    default=default("frames_per_packet"), metavar="N",
                    help=f"frames sent together ({_span('frames_per_packet')}): fewer framing bits, N-1 frames "
-                        "more latency (sent frames: times --send-every) (default %(default)s)")
+                        f"more latency (sent frames: times --send-every) (default {STREAM_FRAMES}, over udp:// "
+                        f"{DATAGRAM_FRAMES}: a burst of lost datagrams then costs fewer frames)")
     p.add_argument("--redundancy", type=number(*LIMITS["redundancy"], kind=int), default=default("redundancy"),
                    metavar="N",
                    help=f"over udp://, the frames packets before it that each datagram carries again "

@@ -38,10 +38,12 @@ from facedeform.sender.pixel_pose import PixelPose, refines
 from facedeform.sender.sources import open_source
 
 #: Seconds between keyframes over datagrams: a burst that defeats the copies of each packet
-#: freezes the face until the next keyframe. On four dev clips' streams (docs/bitstream.md) a
-#: keyframe every 0.4 s instead of every second cost 13 % more bits and halved the freezes in
-#: bursts (mean 16-18 frames to 8-11, worst 25-44 to 12-20).
-DATAGRAM_KEYS = 0.4
+#: freezes the face until the next keyframe. On four dev clips' streams (docs/bitstream.md, "Bursts"),
+#: with three copies and a frame a datagram (sender.config.DATAGRAM_FRAMES), a keyframe every 6 frames
+#: kept every concealed run within 10 frames in bursts of 8 datagrams and 12 in Gilbert-Elliott bursts
+#: (a keyframe every 8: 12 and 14); against 2 frames a datagram and a keyframe every 10 (0.4 s; 18
+#: and 14) it cost 22 % more bits.
+DATAGRAM_KEYS = 0.24
 #: Where the parameters keep all of a --bitrate, their level must code the first second within this
 #: share of it: the rate keeper's dead zone could not bring back a level finer than the rest of a call
 #: affords before a short call ended (lipnet's 3-second clip at 1.5 kbit/s took level 4 from its first
@@ -199,7 +201,7 @@ class SendSession:
 
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)
-        self.encoder = PacketEncoder(self.header, self.config.frames_per_packet, self._model, self.config.dead_zone)
+        self.encoder = PacketEncoder(self.header, self.config.packet_frames, self._model, self.config.dead_zone)
         self.datagrams = Datagrams(self.encoder.header()[0], self.config.redundancy,
                                    sealer=self.sealer) if self.config.datagrams else None
 
@@ -220,7 +222,7 @@ class SendSession:
                     key_seconds = self.header.key_interval * self.header.divisor / fps
                     aim = max(0.0, aim - self.datagrams.repeat_rate(key_seconds))
                 quality = quality_for_bitrate(self._header, sample, self._level_share * aim,
-                                              self.config.frames_per_packet, self.config.dead_zone,
+                                              self.config.packet_frames, self.config.dead_zone,
                                               0 if self.sealer is None else self.sealer.overhead,
                                               self.config.redundancy if self.config.datagrams else None, self._finest)
                 self._keeper = RateKeeper(aim, fps, self.config.dead_zone)

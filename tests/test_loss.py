@@ -14,9 +14,10 @@ from facedeform.protocol.encoder import COPIES, HEADER_EVERY
 from facedeform.protocol.secure import SecureSealer
 from facedeform.protocol.secure_stream import SecureDatagramDecoder
 from facedeform.protocol.stream import DatagramDecoder, Datagrams, Frame, Header, PacketEncoder
+from facedeform.sender.config import DATAGRAM_FRAMES
 from facedeform.sender.session import DATAGRAM_KEYS
 from facedeform.sender.transport import open_sink
-from tests.support import KEY, N, finish, header, parse_y4m, smooth_tracks, start_listener
+from tests.support import FPS, KEY, N, finish, header, parse_y4m, smooth_tracks, start_listener
 
 RNG_SEEDS = range(5)
 
@@ -95,7 +96,7 @@ def longest_freeze(frames: list[Frame], n: int) -> int:
 def test_a_burst_of_three_freezes_the_face_at_most_twelve_frames_over_datagrams(at):
     """One copy of each packet does not survive three datagrams lost in a row: the face is concealed
     until the next keyframe. fd-send's keyframe a second froze it for up to a second and a half; over
-    datagrams it sends one every 0.4 s (sender.session.DATAGRAM_KEYS)."""
+    datagrams it sends one every 0.24 s (sender.session.DATAGRAM_KEYS)."""
     params = smooth_tracks()
     keys = round(DATAGRAM_KEYS * 25)
     froze = {}
@@ -110,6 +111,29 @@ def test_a_burst_of_three_freezes_the_face_at_most_twelve_frames_over_datagrams(
         kept = stream[:at] + stream[at + 3:]
         froze[interval] = longest_freeze(receive(DatagramDecoder(), kept), len(params))
     assert froze[25] > 12 and 0 < froze[keys] <= 12  # a keyframe a second froze longer
+
+
+def burst_freezes(per_packet: int, key_interval: int, burst: int) -> list[int]:
+    """The longest concealed run when ``burst`` datagrams in a row are lost, for each place the burst
+    can start, with fd-send's copies."""
+    enc = PacketEncoder(replace(header(), key_interval=key_interval), per_packet)
+    head = enc.header()
+    pack = Datagrams(head[0], COPIES)
+    stream = pack.add(head)
+    for x in smooth_tracks():
+        stream += pack.add(enc.frame(x, True))
+    stream += pack.add(enc.end())
+    return [longest_freeze(receive(DatagramDecoder(), stream[:at] + stream[at + burst:]), N)
+            for at in range(1, len(stream) - 2 - burst)]
+
+
+def test_a_burst_of_eight_datagrams_is_concealed_at_most_twelve_frames_with_fd_sends_datagrams():
+    """Eight datagrams lost in a row, wherever they fall: at fd-send's frame a datagram and keyframe
+    every 0.24 s the face is concealed for at most 12 frames; at 2 frames a datagram and a keyframe
+    every 0.4 s (fd-send before) the same bursts froze it for up to 18."""
+    new = burst_freezes(DATAGRAM_FRAMES, round(DATAGRAM_KEYS * FPS), 8)
+    old = burst_freezes(2, 10, 8)
+    assert 0 < max(new) <= 12 < max(old)
 
 
 @pytest.mark.parametrize("at", [20, 33, 47, 61])
