@@ -193,6 +193,18 @@ class PictureView(FaceView):
     def model_picture(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None
                       ) -> np.ndarray:
         """What :meth:`render` draws before the picture layer: the model's picture alone."""
+        self.place(params, seq, shape)
+        return self.placed_picture()
+
+    def placed_picture(self) -> np.ndarray:
+        """The model's picture of the frame last placed (:meth:`place`)."""
+        assert self._positions is not None, "place a frame first"
+        return self._renderer.image(self._positions * self._scale, self._camera)
+
+    def place(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None) -> None:
+        """Everything :meth:`model_picture` does but the drawing: the frame's place in the history
+        :meth:`carry` and :attr:`mouth_box` go by, and the texture's lids and mouth for it (a sender
+        that chooses on a smaller view draws this one only when its picture is asked for)."""
         self._seq = self._seq + 1 if seq is None else seq
         positions, motion, deformed = self._placed(self._full(params), shape)
         self._move_background(motion)
@@ -209,7 +221,6 @@ class PictureView(FaceView):
             self._patch(0, self._scene.mouth_row, interior.drawn(opening))
         self._positions = positions
         self._drawn.append((self._seq, positions, motion))
-        return self._renderer.image(positions * self._scale, self._camera)
 
     @property
     def placing(self) -> tuple[Placement, np.ndarray]:

@@ -16,7 +16,14 @@ import cv2
 import numpy as np
 
 from facedeform.codec.model.face_model import BaseFace
-from facedeform.codec.render.frame_video import VideoEncoder, VideoLayer, blocks_in, choose_blocks, video_size
+from facedeform.codec.render.frame_video import (
+    HELD,
+    VideoEncoder,
+    VideoLayer,
+    blocks_in,
+    choose_blocks,
+    video_size,
+)
 from facedeform.protocol.stream import Header, PacketEncoder, stream_size
 from facedeform.sender.config import PARAMETER_FLOOR, parameter_rate
 
@@ -56,6 +63,15 @@ SIDES = ((20_000, 0.5), (float("inf"), 1.0))
 #: layer again from the next one. Byte streams (files, pipes, TCP) lose nothing and start at the
 #: beginning, so they send one key only.
 KEY_EVERY = 1.0
+#: The sender chooses the layer's blocks on the pictures shrunk by a whole number that divides BLOCK and
+#: both sides, as far as they stay at least the video's size and their larger side at least this many
+#: pixels: at 1920x1080 with a 960x540 video by 2 (a block is then 16x16 pixels). The receiver draws the
+#: picture whole as before; only which blocks the sender hands to the model is judged on fewer pixels.
+#: Drawing the model's picture at 1920x1080 every frame had cost the sender 15 ms of its 47 (docs/hd.md).
+#: Judged on fewer pixels than the video's, the choice lost the model's and the video's detail alike:
+#: the bundled clip at 10 kbit/s with a 180x144 video, 32.85 dB chosen at 360x288, 32.84 at 180x144,
+#: 31.53 at 90x72.
+CHOICE_SIDE = 480
 #: The layer's least bit/s per 256x256 pixels: below it, its few frames cost the parameters more
 #: than they show (liveportrait_d11 at 1.5 kbit/s: 27.6 dB with a layer of 0.4 kbit/s, 28.2
 #: with the parameters alone).
@@ -66,6 +82,14 @@ def layer_rate(bitrate: float) -> float:
     """bit/s the layer plans on at ``bitrate`` for the whole stream (the parameters take at most
     their floor's worth at the start; what they leave unused goes to the layer as the call goes)."""
     return bitrate - min(parameter_rate(bitrate), PARAMETER_FLOOR)
+
+
+def choice_shrink(picture_size: tuple[int, int], video: tuple[int, int]) -> int:
+    """What the sender's choice shrinks a picture of ``picture_size`` (w, h) with a ``video`` of that
+    size by (CHOICE_SIDE)."""
+    w, h = picture_size
+    return next(s for s in (4, 2, 1) if s == 1 or (
+        w % s == 0 and h % s == 0 and w // s >= video[0] and h // s >= video[1] and max(w, h) // s >= CHOICE_SIDE))
 
 
 def layer_pays(bitrate: float, picture_size: tuple[int, int]) -> bool:
@@ -81,7 +105,8 @@ class PictureLayer:
     send before that frame's packets; ``sealed``: packets are sealed (each costs a sync byte
     more on a byte stream); ``datagrams``: they go over a lossy link (KEY_EVERY).
     :attr:`picture` is what the receiver draws of the last frame stepped, drawn when it is read (the
-    layer's choices do not need it: at 1920x1080 drawing it cost the sender 5 ms a frame).
+    layer's choices do not need it: at 1920x1080 drawing it cost the sender 5 ms a frame, and the
+    model's picture whole another 15 where the choice is made on a smaller view, :data:`CHOICE_SIDE`).
     """
 
     def __init__(self, face: BaseFace, header: Header, bitrate: float, sealed: bool = False,
@@ -99,6 +124,11 @@ class PictureLayer:
         layer = layer_rate(bitrate)
         share = next(s for most, s in SIDES if layer * 256 ** 2 / (width * height) < most)
         self._video_size = video_size(self.size, max(width, height) * share)
+        self._shrink = shrink = choice_shrink(self.size, self._video_size)
+        self._look = self._view if shrink == 1 else PictureView(header, face, (width // shrink, height // shrink))
+        #: (frame, parameters) the whole view has not placed yet, placed when :attr:`picture` is read: what
+        #: its carry looks back to is at most HELD frames old, as at the receiver
+        self._unplaced: deque[tuple[int, np.ndarray]] = deque(maxlen=HELD)
         video = (1 - BLOCKS_SHARE) * layer  # bit/s
         self._every = max(1, ceil(header.fps * 8 * SMALLEST / video))
         sent = header.fps / self._every  # video packets a second
@@ -114,7 +144,7 @@ class PictureLayer:
         self._size = 8.0 * SMALLEST  # bits of a video packet, a running mean
         self._key_every = KEY_EVERY * header.fps if datagrams else None
         self._last_key: int | None = None
-        self._last: tuple[int, np.ndarray] | None = None  # the last frame stepped and its model's picture
+        self._last: int | None = None  # the last frame stepped
         self.packets = self.bits = 0
 
     def step(self, seq: int, frame_bgr: np.ndarray, params: np.ndarray, encoder: PacketEncoder,
@@ -123,7 +153,9 @@ class PictureLayer:
         decoded parameters are ``params`` and packets ``frame_packets``."""
         spent = 8 * stream_size(frame_packets, self._sealed)
         self._saved = min(self._saved + self._blocks_bits, 8.0 * SMALLEST)
-        model = self._view.model_picture(params, seq)
+        if self._look is not self._view:
+            self._unplaced.append((seq, params))
+        model = self._look.model_picture(params, seq)  # at the size the choice is made at
         packets: list[bytes] = []
         room = self._window_bits - sum(self._recent) - spent
         key = self._last_key is None or (  # within KEY_EVERY, on a frame the video is sent
@@ -134,28 +166,33 @@ class PictureLayer:
         if seq % self._every == 0 and (key or (self._credit >= 0 and room >= HEADROOM * self._size)):
             packets = self._send(seq, self._rgb(frame_bgr), model, key, encoder)
         elif self._layer.frame is not None and min(self._saved, room) >= 8 * (PACKING + 4):
-            rgb = self._rgb(frame_bgr)
+            rgb = self._looked(self._rgb(frame_bgr))
             favour = self._favour()
-            data = self._layer.make(seq, None, False, model, self._view.carry, lambda parts, before: choose_blocks(
-                model, parts, rgb, before, BLOCKS_ONLY_GAIN, favour))
+            data = self._layer.make(seq, None, False, model, self._look.carry, lambda parts, before: choose_blocks(
+                model, parts, rgb, before, BLOCKS_ONLY_GAIN, favour, self._shrink))
             packets = [] if data is None else encoder.picture(seq, data)
             self._saved -= 8 * stream_size(packets, self._sealed)
         bits = 8 * stream_size(packets, self._sealed)
         self.packets += bool(packets)
         self.bits += bits
         self._recent.append(spent + bits)
-        self._last = seq, model
+        self._last = seq
         return packets
 
     @property
     def picture(self) -> np.ndarray | None:
         """What the receiver draws of the last frame stepped (None before the first); read it before the
         next step."""
-        return None if self._last is None else self._layer.draw(*self._last, self._view.carry)
+        if self._last is None:
+            return None
+        while self._unplaced:
+            seq, params = self._unplaced.popleft()
+            self._view.place(params, seq)
+        return self._layer.draw(self._last, self._view.placed_picture(), self._view.carry)
 
     def _favour(self) -> np.ndarray:
         """Per block, how many times the video's error counts: MOUTH in the mouth's blocks."""
-        return np.where(blocks_in(self._view.mouth_box, self.size), MOUTH, 1.0)
+        return np.where(blocks_in(self._look.mouth_box, self.size), MOUTH, 1.0)
 
     def close(self) -> None:
         """Ends the video's encoder (after the last frame)."""
@@ -165,11 +202,17 @@ class PictureLayer:
         rgb = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)
         return rgb if rgb.shape[1::-1] == self.size else cv2.resize(rgb, self.size, interpolation=cv2.INTER_AREA)
 
+    def _looked(self, rgb: np.ndarray) -> np.ndarray:
+        """``rgb`` at the picture's size, at the size the choice is made at."""
+        return rgb if self._look is self._view else cv2.resize(rgb, self._look.size, interpolation=cv2.INTER_AREA)
+
     def _send(self, seq: int, rgb: np.ndarray, model: np.ndarray, key: bool, encoder: PacketEncoder) -> list[bytes]:
-        video = self._encoder.encode(cv2.resize(rgb, self._video_size, interpolation=cv2.INTER_AREA), key)
-        favour = self._favour()
-        data = self._layer.make(seq, video, key, model, self._view.carry, lambda parts, before: choose_blocks(
-            model, parts, rgb, before, favour=favour))
+        favour, looked = self._favour(), self._looked(rgb)
+        small = looked if looked.shape[1::-1] == self._video_size else \
+            cv2.resize(rgb, self._video_size, interpolation=cv2.INTER_AREA)
+        video = self._encoder.encode(small, key)
+        data = self._layer.make(seq, video, key, model, self._look.carry, lambda parts, before: choose_blocks(
+            model, parts, looked, before, favour=favour, shrink=self._shrink))
         packets = [] if data is None else encoder.picture(seq, data)
         bits = 8 * stream_size(packets, self._sealed)
         # A packet's size to expect: after the first key, half of it (the next frame comes after the

@@ -66,6 +66,29 @@ def test_the_receiver_draws_what_the_sender_reconstructed_bit_for_bit(face, call
         np.testing.assert_array_equal(mine, theirs)
 
 
+def psnr(pictures, frames) -> float:
+    errors = [np.mean((a.astype(float) - b) ** 2) for a, b in zip(pictures, frames)]
+    return float(np.mean(10 * np.log10(255 ** 2 / np.array(errors))))
+
+
+def test_a_choice_made_on_a_smaller_view_is_drawn_alike_at_both_ends(face, call, monkeypatch):
+    """At HD the sender chooses the blocks on the pictures shrunk (picture_layer.CHOICE_SIDE): here the
+    sample's 360x288 picture chosen at half its size. The receiver still draws the sender's
+    reconstruction bit for bit, and the picture is about as good as with the choice made whole."""
+    monkeypatch.setattr(picture_layer, "CHOICE_SIDE", 180)
+    shrinks = []
+    shrink = picture_layer.choice_shrink
+    monkeypatch.setattr(picture_layer, "choice_shrink", lambda *sizes: shrinks.append(shrink(*sizes)) or shrinks[-1])
+    with sender_pictures() as pictures:
+        chunks = list(facedeform.encode(CLIP, face, bitrate=RATE * 1000, embed_face=False))
+    drawn = list(facedeform.decode(chunks, face))
+    assert shrinks == [2] and len(drawn) == len(pictures)
+    for mine, theirs in zip(pictures, drawn):
+        np.testing.assert_array_equal(mine, theirs)
+    frames = [f[..., ::-1] for f in facedeform.sender.sources.VideoSource(CLIP).frames()]
+    assert psnr(drawn, frames) > psnr(call[1], frames) - 0.3
+
+
 def test_the_layer_shows_what_the_model_cannot(face):
     """The light goes up after the first second: the model-only picture stays as it was, the
     picture layer brings it most of the way to the frames."""

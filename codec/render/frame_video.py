@@ -249,21 +249,22 @@ def _mix(model, up, coarse, agree, soft, out) -> None:  # pragma: no cover - com
 
 
 def choose_blocks(model: np.ndarray, parts: VideoParts, frame: np.ndarray, before: np.ndarray,
-                  hysteresis: float = 1.5, favour: np.ndarray | None = None) -> np.ndarray:
+                  hysteresis: float = 1.5, favour: np.ndarray | None = None, shrink: int = 1) -> np.ndarray:
     """The sender's choice: the blocks where the model's picture is nearer ``frame`` than the
     video's (``parts``: as :func:`blend` takes them), by ``hysteresis`` times to change a block's last
     choice ``before`` (a choice that flickers costs bits and shows), the video's error counted
-    ``favour`` times (per block)."""
+    ``favour`` times (per block); ``shrink``: the pictures are the picture's size over this
+    (a divisor of BLOCK), so a block is BLOCK / shrink pixels of them."""
     by_model, by_video = _block_errors(np.ascontiguousarray(model), *parts, np.ascontiguousarray(frame),
-                                       *before.shape)
+                                       *before.shape, BLOCK // shrink)
     if favour is not None:
         by_video = by_video * favour
     return np.where(before, by_model < hysteresis * by_video, hysteresis * by_model < by_video)
 
 
 @njit(cache=True, fastmath=True)
-def _block_errors(model, up, coarse, agree, frame, rows, columns):  # pragma: no cover - compiled
-    """(rows, columns) float64 each: per block, the squared error against ``frame`` of the model's
+def _block_errors(model, up, coarse, agree, frame, rows, columns, block):  # pragma: no cover - compiled
+    """(rows, columns) float64 each: per block of ``block`` pixels, the squared error against ``frame`` of the model's
     picture and of the video's sharpened by the model's detail (up + agree (model - coarse), as
     blend draws it before rounding). A row's pixels' errors first (a loop that vectorises, over the
     arrays seen flat as in _mix), then their sums per block: at 1920x1080 NumPy's whole-frame float32
@@ -284,11 +285,11 @@ def _block_errors(model, up, coarse, agree, frame, rows, columns):  # pragma: no
                 em += (m - f) * (m - f)
                 ev += (sharpened - f) * (sharpened - f)
             of_model[x], of_video[x] = em, ev
-        row = y // BLOCK
+        row = y // block
         for column in range(columns):
-            block = slice(column * BLOCK, min(w, column * BLOCK + BLOCK))
-            by_model[row, column] += of_model[block].sum()
-            by_video[row, column] += of_video[block].sum()
+            span = slice(column * block, min(w, column * block + block))
+            by_model[row, column] += of_model[span].sum()
+            by_video[row, column] += of_video[span].sum()
     return by_model, by_video
 
 
