@@ -92,9 +92,12 @@ def choice_shrink(picture_size: tuple[int, int], video: tuple[int, int]) -> int:
         w % s == 0 and h % s == 0 and w // s >= video[0] and h // s >= video[1] and max(w, h) // s >= CHOICE_SIDE))
 
 
-def layer_pays(bitrate: float, picture_size: tuple[int, int]) -> bool:
-    """Whether a layer at ``bitrate`` for a picture of ``picture_size`` (w, h) is worth sending."""
-    return layer_rate(bitrate) * 256 ** 2 / (picture_size[0] * picture_size[1]) >= LEAST
+def layer_pays(bitrate: float, picture_size: tuple[int, int], parameters: float = 0.0) -> bool:
+    """Whether a layer at ``bitrate`` for a picture of ``picture_size`` (w, h) is worth sending, where
+    the parameters cost ``parameters`` bit/s when that is more than the layer plans on leaving them
+    (over datagrams, with their copies, keyframes and the header's repeats: several kbit/s)."""
+    room = min(layer_rate(bitrate), bitrate - parameters)
+    return room * 256 ** 2 / (picture_size[0] * picture_size[1]) >= LEAST
 
 
 class PictureLayer:

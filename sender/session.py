@@ -1,7 +1,8 @@
 """One sending session: a source of frames -> packets, plus statistics and the research dump."""
 
+import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
 from itertools import chain, islice
 from pathlib import Path
@@ -17,7 +18,9 @@ from facedeform.common.npz import NpzAppender
 from facedeform.common.parameters import BASIS_PARAMS, PLACING_PARAMS
 from facedeform.common.stages import Source
 from facedeform.protocol.basis import principal_basis
+from facedeform.protocol.encoder import EAGER_GAP, EAGER_SECONDS
 from facedeform.protocol.layouts import shipped_basis
+from facedeform.protocol.rate import sample_bits_per_second
 from facedeform.protocol.secure import SecureSealer
 from facedeform.protocol.stream import (
     DEFAULT_QUALITY,
@@ -132,15 +135,17 @@ class SendSession:
     source (``sender.sources``); config: how the call is coded (:class:`sender.config.SendConfig`);
     face: the person's face model (fd-enroll) to fit and render instead of the generic face,
     carried in the stream when ``config.embed_face``;
-    dump: a .npz path to write the research dump to (:func:`dump_writer`), finished by :meth:`close`.
+    dump: a .npz path to write the research dump to (:func:`dump_writer`), finished by :meth:`close`;
+    warn: called with a line where the call cannot be coded as asked (default: printed on stderr).
     Memory does not grow with the call: only counters are kept of the frames sent.
     """
 
     def __init__(self, source: str | Source, config: SendConfig | None = None, dump: str | Path | None = None,
-                 face: Face | None = None) -> None:
+                 face: Face | None = None, warn: Callable[[str], None] | None = None) -> None:
         from facedeform.sender.tracker import FaceTracker
 
         self.config = config = config or SendConfig()
+        self._warn = warn or (lambda line: print(f"fd-send: warning: {line}", file=sys.stderr))
         self.source = open_source(source) if isinstance(source, str) else source
         if max(self.source.size) > MAX_SIDE:
             raise InputError(f"the source is {self.source.size[0]}x{self.source.size[1]} pixels: a stream carries "
@@ -202,8 +207,10 @@ class SendSession:
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)
         self.encoder = PacketEncoder(self.header, self.config.packet_frames, self._model, self.config.dead_zone)
+        keys = self.header.key_interval * self.header.divisor / self.source.fps  # seconds apart
         self.datagrams = Datagrams(self.encoder.header()[0], self.config.redundancy,
-                                   sealer=self.sealer) if self.config.datagrams else None
+                                   eager=round(EAGER_SECONDS / keys), sealer=self.sealer,
+                                   eager_every=round(EAGER_GAP / keys)) if self.config.datagrams else None
 
     def packets(self) -> Iterator[list[bytes]]:
         """Lists of packets: the header once a face is known (a clip without one sends nothing),
@@ -226,6 +233,7 @@ class SendSession:
                                               0 if self.sealer is None else self.sealer.overhead,
                                               self.config.redundancy if self.config.datagrams else None, self._finest)
                 self._keeper = RateKeeper(aim, fps, self.config.dead_zone)
+                self._check_room(quality, sample)
             self._configure(quality)
             if self._layer_rate is not None:
                 self.picture = PictureLayer(self._face, self.header, self._layer_rate, self.sealed,
@@ -257,6 +265,34 @@ class SendSession:
             if packets:
                 yield packets
         yield self.end()
+
+    def _check_room(self, quality: int, sample: Sequence[tuple[np.ndarray, bool]]) -> None:
+        """Over datagrams, where the parameters as they go (their first second ``sample`` at ``quality``,
+        with their copies and keyframes and the header's repeats) leave the picture layer too little to
+        pay, it is not sent (on a byte stream they keep within their share); where they take more than
+        --bitrate, says so."""
+        bitrate, over = self.config.bitrate, " with the copies, keyframes and header repeats of udp://"
+        if bitrate is None:
+            return
+        header = self._header(quality)
+        cost = sample_bits_per_second(header, sample, self.config.packet_frames, self.config.dead_zone,
+                                      0 if self.sealer is None else self.sealer.overhead,
+                                      self.config.redundancy if self.config.datagrams else None)
+        if self.datagrams is not None:
+            keys = header.key_interval * header.divisor / header.fps
+            eager = 8 * len(self.encoder.header()[0]) / EAGER_GAP  # bit/s while the first seconds' repeats go
+            cost += self.datagrams.repeat_rate(keys) + eager
+        else:
+            over = ""
+        reference = self._face.picture
+        if self._layer_rate is not None and reference is not None and over and \
+                not layer_pays(bitrate, reference.image.shape[1::-1], cost):
+            self._layer_rate = None
+            self._warn(f"the parameters take about {cost / 1000:.1f} of the {bitrate / 1000:g} kbit/s asked{over}: "
+                       "too little is left for the picture layer, which is not sent")
+        if cost > bitrate:
+            self._warn(f"the parameters take about {cost / 1000:.1f} kbit/s at their coarsest{over}, more than "
+                       f"the {bitrate / 1000:g} asked: the stream will go over it")
 
     def end(self) -> list[bytes]:
         """The end mark (and the last pending packet), once; [] if already sent or nothing was."""

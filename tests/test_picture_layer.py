@@ -189,6 +189,23 @@ def test_without_a_bitrate_with_the_layer_off_or_below_its_least_rate_nothing_ch
         assert not any(isinstance(e, Picture) for e in decoder.feed(stream) + decoder.close())
 
 
+def test_over_datagrams_a_rate_the_parameters_fill_sends_no_layer_and_says_so(face):
+    """Over UDP the parameters' copies, keyframes and header repeats take about 5 kbit/s of the
+    sample's call: at 6 the layer's keys would take the stream over the rate, so it is not sent, with
+    one line saying why; on a byte stream the same rate sends it."""
+    sent = {}
+    for datagrams in (True, False):
+        said: list[str] = []
+        session = SendSession(str(CLIP), SendConfig(bitrate=6000, embed_face=False, datagrams=datagrams), face=face,
+                              warn=said.append)
+        total = sum(sum(map(len, p)) for p in session.packets())
+        sent[datagrams] = (said, session.picture, 8 * total * session.source.fps / session.frame_count)
+    said, layer, rate = sent[True]
+    assert layer is None and len(said) == 1 and "picture layer" in said[0] and rate <= 6000
+    said, layer, rate = sent[False]
+    assert not said and layer is not None and layer.packets > 0
+
+
 def test_over_datagrams_a_lost_picture_packet_is_made_good_by_the_next_key(face):
     """A receiver that lost a picture packet draws the model's picture alone from the next one (whose
     counter shows the gap) until the layer's next key (one a second over datagrams), and then
