@@ -226,6 +226,11 @@ class Datagrams:
         are past (their sealing's few bytes aside)."""
         return 8 * len(self._header) / (self._every * key_seconds) if self._every else 0.0
 
+    def eager_rate(self, key_seconds: float) -> float:
+        """bit/s the header's repeats cost while the first ``eager`` keyframes go (the later ones'
+        :meth:`repeat_rate` aside)."""
+        return 8 * len(self._header) / (self._eager_every * key_seconds) if self._eager else 0.0
+
     def add(self, packets: list[bytes]) -> list[bytes]:
         """Datagrams for one step of the encoder (its header, a frame's packets or its end)."""
         out: list[bytes] = []

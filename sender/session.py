@@ -54,6 +54,11 @@ DATAGRAM_KEYS = 0.24
 LEVEL_SHARE = 0.9
 
 
+def key_seconds(header: Header) -> float:
+    """Seconds between the keyframes of a stream with ``header``."""
+    return header.key_interval * header.divisor / header.fps
+
+
 def stream_header(names: tuple[str, ...], fps: float, face_id: str, quality: int = DEFAULT_QUALITY,
                   model_size: int = 0, basis: np.ndarray | None = None, divisor: int = 1,
                   size: tuple[int, int] = (0, 0), rule: str = DEFAULT_RULE, keys: float = 1.0) -> Header:
@@ -207,7 +212,7 @@ class SendSession:
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)
         self.encoder = PacketEncoder(self.header, self.config.packet_frames, self._model, self.config.dead_zone)
-        keys = self.header.key_interval * self.header.divisor / self.source.fps  # seconds apart
+        keys = key_seconds(self.header)
         self.datagrams = Datagrams(self.encoder.header()[0], self.config.redundancy,
                                    eager=round(EAGER_SECONDS / keys), sealer=self.sealer,
                                    eager_every=round(EAGER_GAP / keys)) if self.config.datagrams else None
@@ -226,8 +231,7 @@ class SendSession:
             quality = self.header.quality
             if first and aim is not None:
                 if self.datagrams is not None:  # the header's repeats for late joiners come out of it too
-                    key_seconds = self.header.key_interval * self.header.divisor / fps
-                    aim = max(0.0, aim - self.datagrams.repeat_rate(key_seconds))
+                    aim = max(0.0, aim - self.datagrams.repeat_rate(key_seconds(self.header)))
                 quality = quality_for_bitrate(self._header, sample, self._level_share * aim,
                                               self.config.packet_frames, self.config.dead_zone,
                                               0 if self.sealer is None else self.sealer.overhead,
@@ -271,21 +275,19 @@ class SendSession:
         with their copies and keyframes and the header's repeats) leave the picture layer too little to
         pay, it is not sent (on a byte stream they keep within their share); where they take more than
         --bitrate, says so."""
-        bitrate, over = self.config.bitrate, " with the copies, keyframes and header repeats of udp://"
+        bitrate, datagrams = self.config.bitrate, self.datagrams
         if bitrate is None:
             return
         header = self._header(quality)
         cost = sample_bits_per_second(header, sample, self.config.packet_frames, self.config.dead_zone,
                                       0 if self.sealer is None else self.sealer.overhead,
-                                      self.config.redundancy if self.config.datagrams else None)
-        if self.datagrams is not None:
-            keys = header.key_interval * header.divisor / header.fps
-            eager = 8 * len(self.encoder.header()[0]) / EAGER_GAP  # bit/s while the first seconds' repeats go
-            cost += self.datagrams.repeat_rate(keys) + eager
-        else:
-            over = ""
+                                      None if datagrams is None else self.config.redundancy)
+        over = ""
+        if datagrams is not None:
+            cost += datagrams.repeat_rate(key_seconds(header)) + datagrams.eager_rate(key_seconds(header))
+            over = " with the copies, keyframes and header repeats of udp://"
         reference = self._face.picture
-        if self._layer_rate is not None and reference is not None and over and \
+        if self._layer_rate is not None and reference is not None and datagrams is not None and \
                 not layer_pays(bitrate, reference.image.shape[1::-1], cost):
             self._layer_rate = None
             self._warn(f"the parameters take about {cost / 1000:.1f} of the {bitrate / 1000:g} kbit/s asked{over}: "
