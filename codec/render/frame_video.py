@@ -41,9 +41,12 @@ from numba import njit
 from facedeform.protocol.arith import AdaptiveBit, Decoder, Encoder, Incomplete
 
 BLOCK = 32  # pixels of the picture per model-or-video choice (16: four to seven times the bits for 0.24 dB)
-#: SVT-AV1's speed preset: slower ones (8, 6) changed PSNR by -0.2 to +0.5 dB on two moving clips
-#: at 4 and 10 kbit/s, and the sender runs at 50 frames/s with 10.
-PRESET = "10"
+#: SVT-AV1's speed preset: in its real-time mode 6 is the slowest (4 gives the same bytes). Against
+#: 10, on the nine dev clips' crops at 4, 10 and 30 kbit/s, the whole picture gained 0.19, 0.28 and
+#: 0.72 dB on average (at 10 and 30 on every clip), at the same rates; at 1280x720 and 60 kbit/s
+#: 0.44 dB (worst frame 31.9 -> 35.9), at 1920x1080 0.13, where the encoder's 7 ms a frame became 15
+#: (docs/picture_layer.md).
+PRESET = "6"
 #: SVT-AV1's real-time mode: without it low-delay CBR forces two hierarchical levels, every fourth
 #: frame several times the others' bits (sadtalker_WDA_KatieHill at 30 kbit/s: 500-1000 bytes
 #: against 40-150), and the layer, which sends a frame only when the rate has room, skipped the
