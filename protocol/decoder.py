@@ -136,7 +136,7 @@ class PacketDecoder:
         starts with one, and a keyframe or framed packet is checked before it is decoded."""
         data = bytes(data)
         events: list = []
-        pos, accepted, repeated = 0, False, True
+        pos, accepted, repeated, fresh = 0, False, True, 0
         while pos < len(data):
             repeat = next((len(r) for r in self._recent if data.startswith(r, pos)), 0)
             if repeat:
@@ -150,6 +150,7 @@ class PacketDecoder:
                 continue
             if data[pos] != SYNC or packet_type(data[pos + 1]) == KEY:  # a frames packet: what copies repeat
                 self._recent.append(data[pos:pos + got.used])
+                fresh += any(isinstance(e, Frame) for e in got.events)
             accepted = True
             events += got.events
             pos += got.used
@@ -157,6 +158,7 @@ class PacketDecoder:
             if not (repeated and data):
                 return None
             self.stats.duplicates += 1  # a datagram of packets all taken before
+        self.stats.repaired += max(0, fresh - 1)  # a datagram brings one frames packet of its own
         return events
 
     def accept_wire(self, buf: bytes, pos: int, final: bool, at: int) -> Read:

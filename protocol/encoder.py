@@ -64,7 +64,8 @@ class PacketEncoder:
     (steps, 0.5-4; 0.5: plain rounding) bounds each coded value's error (each parameter's, or
     with the header's basis each coordinate's): see :func:`protocol.quantise.hold_or_round`.
     It holds across keyframes too, so a still value does not jump once a second. The receiver
-    does not know it, so :attr:`dead_zone` may change between frames (``protocol.rate.RateKeeper``).
+    does not know it, so :attr:`dead_zone` may change between frames (``protocol.rate.RateKeeper``),
+    and so may :attr:`frames_per_packet` (sender/link.py).
     """
 
     def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"",
@@ -73,7 +74,7 @@ class PacketEncoder:
             raise BitstreamError(f"frames per packet must be 1-{MAX_COUNT}")
         if len(model) != header.model_size:
             raise BitstreamError(f"header announces {header.model_size} model bytes, got {len(model)}")
-        self._h, self._fpp, self._model = header, frames_per_packet, model
+        self._h, self.frames_per_packet, self._model = header, frames_per_packet, model
         self.dead_zone = dead_zone
         self._new_bit = models_for(header)
         self._frames = 0
@@ -140,7 +141,7 @@ class PacketEncoder:
             group.encode_delta(coder, values, face)
         self._count += 1
         implied = packet_ends(self._count, coded + 1, self._h.key_interval)
-        if implied or group.active >= self._fpp:
+        if implied or group.active >= self.frames_per_packet:
             return [self._flush(coder, stop_flag=not implied)]
         return []
 
@@ -207,13 +208,14 @@ class Datagrams:
     twice. With a ``sealer`` every datagram is sealed, and the preamble goes
     again with the header. Model chunks are not repeated: a late receiver
     draws the face it has. What each costs is in docs/bitstream.md, "Datagrams".
+    :attr:`copies` may change between packets: a decoder takes a datagram with any number.
     """
 
     def __init__(self, header_packet: bytes, copies: int = COPIES, header_every: int | None = None,
                  eager: int = HEADER_EAGER, sealer=None, eager_every: int = 1) -> None:
         if not 0 <= copies <= MAX_REDUNDANCY:
             raise BitstreamError(f"redundancy must be 0-{MAX_REDUNDANCY} packets, not {copies!r}")
-        self._header, self._copies, self._sealer = header_packet, copies, sealer
+        self._header, self.copies, self._sealer = header_packet, copies, sealer
         if header_every is None:
             header_every = min(HEADER_EVERY, max(1, -(-8 * len(header_packet) // REPEAT_BITS)))
         self._every, self._eager, self._eager_every = header_every, eager, max(1, eager_every)
@@ -245,7 +247,7 @@ class Datagrams:
                     repeat = self._seal([self._header], preamble=True)
                     self.repeated += sum(map(len, repeat))
                     out += repeat
-            copies = self._recent[-self._copies:] if self._copies else []
+            copies = self._recent[-self.copies:] if self.copies else []
             while copies and sum(map(len, copies)) + len(packet) > MAX_BODY:
                 copies = copies[1:]
             joined = b"".join(copies + [packet])

@@ -50,11 +50,14 @@ class End:
 
 @dataclass
 class Stats:
-    """Counters a CLI can print: packets taken, rejected and ignored, bytes skipped, frames concealed."""
+    """Counters a CLI can print: packets taken, rejected and ignored, bytes skipped, frames concealed,
+    and frames packets repaired (taken from a later datagram's copies: the datagram that carried them
+    first was lost or came late)."""
 
     packets: int = 0
     damaged: int = 0
     duplicates: int = 0
     skipped_bytes: int = 0
     concealed: int = 0
+    repaired: int = 0
     reasons: list[str] = field(default_factory=list)

@@ -24,6 +24,7 @@ from urllib.parse import urlsplit
 from facedeform.common.errors import BitstreamError, InputError
 from facedeform.protocol.framing import MAX_BODY, SYNC
 from facedeform.protocol.header import Header, encode_header, parse_header
+from facedeform.protocol.report import REPORT_EVERY, Report, encode_report
 from facedeform.protocol.secure import MAGIC
 from facedeform.protocol.secure_stream import SecureDatagramDecoder, SecureStreamDecoder
 from facedeform.protocol.stream import Damage, DatagramDecoder, StreamDecoder
@@ -104,6 +105,8 @@ class UdpSource:
     queues none, and the reader waits only if rendering falls behind the
     real stream). ``headers``: where the headers of earlier calls are kept
     (a receiver restarted mid-call starts at the first keyframe that names one).
+    Without a key it sends a loss report (protocol/report.py) back to where the stream comes
+    from every REPORT_EVERY seconds, so that the sender sends its copies only while they are needed.
     """
 
     def __init__(self, sock: socket.socket, idle: float, key: bytes | None = None,
@@ -115,6 +118,9 @@ class UdpSource:
         self.timed_out = False
         self._sock, self._idle = sock, idle
         self._sealed = False  # a sealed stream's preamble arrived
+        self._reports = key is None
+        self._received = 0  # datagrams of the stream
+        self._reported = -REPORT_EVERY  # when the last report went
         self._queue: queue.Queue = queue.Queue(QUEUE)
         self._stop = threading.Event()
         try:
@@ -142,7 +148,7 @@ class UdpSource:
             last = None  # when the last datagram arrived: silence for ``idle`` after it ends the stream
             while not self.decoder.ended and not self._stop.is_set():
                 try:
-                    data = self._sock.recv(65536)
+                    data, peer = self._sock.recvfrom(65536)
                 except TimeoutError:
                     if last is not None and time.monotonic() - last > self._idle:
                         self.timed_out = True
@@ -156,9 +162,24 @@ class UdpSource:
                     if self._headers is not None and isinstance(events[0], Header):
                         self._headers.keep(events[0])
                     self._put((events, arrived))
+                    self._report(peer)
         except Exception as exc:  # raised again in the consumer's thread
             self._put(exc)
         self._put(None)
+
+    def _report(self, peer) -> None:
+        """After a datagram of the stream from ``peer``: a loss report to it, at most every REPORT_EVERY
+        seconds (a sender that does not read them drops them)."""
+        self._received += 1
+        now = time.monotonic()
+        if not self._reports or now - self._reported < REPORT_EVERY:
+            return
+        self._reported = now
+        stats = self.decoder.stats
+        try:
+            self._sock.sendto(encode_report(Report(self._received, stats.repaired, stats.concealed)), peer)
+        except OSError:  # the way back is closed: the sender keeps its copies
+            self._reports = False
 
     def _put(self, item) -> None:
         while not self._stop.is_set():

@@ -21,6 +21,7 @@ from facedeform.protocol.basis import principal_basis
 from facedeform.protocol.encoder import EAGER_GAP, EAGER_SECONDS
 from facedeform.protocol.layouts import shipped_basis
 from facedeform.protocol.rate import sample_bits_per_second
+from facedeform.protocol.report import Report
 from facedeform.protocol.secure import SecureSealer
 from facedeform.protocol.stream import (
     DEFAULT_QUALITY,
@@ -35,7 +36,8 @@ from facedeform.protocol.stream import (
     stream_size,
 )
 from facedeform.sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing, resolve_layout
-from facedeform.sender.config import SPEAKER_RATE, SendConfig, parameter_rate
+from facedeform.sender.config import DATAGRAM_FRAMES, SPEAKER_RATE, STREAM_FRAMES, SendConfig, parameter_rate
+from facedeform.sender.link import LinkWatch
 from facedeform.sender.picture_layer import PictureLayer, layer_pays
 from facedeform.sender.pixel_pose import PixelPose, refines
 from facedeform.sender.sources import open_source
@@ -142,6 +144,8 @@ class SendSession:
     carried in the stream when ``config.embed_face``;
     dump: a .npz path to write the research dump to (:func:`dump_writer`), finished by :meth:`close`;
     warn: called with a line where the call cannot be coded as asked (default: printed on stderr).
+    Over datagrams without a key, :attr:`feedback` (set it to the sink's ``report``) gives the
+    receiver's loss reports, by which the copies are sent only while datagrams are lost (sender/link.py).
     Memory does not grow with the call: only counters are kept of the frames sent.
     """
 
@@ -184,6 +188,10 @@ class SendSession:
         self.header_bytes = 0
         self._ended = False
         self._started = time.perf_counter()
+        #: the newest loss report since the last call (None: none came), where the sink reads them
+        self.feedback: Callable[[], Report | None] | None = None
+        self._link = LinkWatch()
+        self.lean_frames = 0  # frames sent lean: without copies, on a link that lost nothing
 
     @property
     def sealed(self) -> bool:
@@ -257,6 +265,7 @@ class SendSession:
                 if self._dump is None:
                     self._dump = dump_writer(self._dump_path, len(self.header.names))
                 self._dump.add(**dump_row(result))
+            self._follow_link()
             repeats_before = 0 if self.datagrams is None else self.datagrams.repeated
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
             if self._keeper is not None:  # on the frames' bits: the repeats' share was taken off its aim
@@ -269,6 +278,17 @@ class SendSession:
             if packets:
                 yield packets
         yield self.end()
+
+    def _follow_link(self) -> None:
+        """Over datagrams, with the receiver's reports and no key: the copies and a frame a datagram while
+        it loses datagrams or may, none and STREAM_FRAMES (or the frames a packet asked) while it does not."""
+        if self.feedback is None or self.datagrams is None or self.sealer is not None:
+            return
+        self._link.hear(self.feedback())
+        lean = self._link.lean
+        self.datagrams.copies = 0 if lean else self.config.redundancy
+        self.encoder.frames_per_packet = self.config.frames_per_packet or (STREAM_FRAMES if lean else DATAGRAM_FRAMES)
+        self.lean_frames += lean
 
     def _check_room(self, quality: int, sample: Sequence[tuple[np.ndarray, bool]]) -> None:
         """Over datagrams, where the parameters as they go (their first second ``sample`` at ``quality``,
@@ -330,6 +350,7 @@ class SendSession:
                 "basis": self.header.basis is not None, "send_every": self.header.divisor,
                 "rest_frame": None if rest is None else rest.index,
                 "tag_bits": None if self.sealer is None else 8 * self.sealer.tag_bytes,
+                "lean_frames": self.lean_frames,
                 "picture_packets": None if self.picture is None else self.picture.packets,
                 "picture_bits_per_frame": None if self.picture is None else round(self.picture.bits / max(n, 1), 1),
                 "frames_per_second": round(n / max(time.perf_counter() - self._started, 1e-9), 1)}

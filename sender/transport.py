@@ -11,6 +11,7 @@ import time
 from urllib.parse import urlsplit
 
 from facedeform.common.errors import InputError
+from facedeform.protocol.report import SIZE, Report, parse_report
 from facedeform.protocol.stream import frame_bytes
 
 CONNECT_TIMEOUT = 5.0  # seconds for one attempt to connect
@@ -34,15 +35,29 @@ class ByteSink:
 
 
 class DatagramSink:
-    """One UDP datagram per packet to ``address`` (host, port)."""
+    """One UDP datagram per packet to ``address`` (host, port); :meth:`report` reads what the receiver
+    reports back (protocol/report.py) to the same socket."""
 
     def __init__(self, address: tuple[str, int]) -> None:
         self._sock = socket.socket(_family(address), socket.SOCK_DGRAM)
         self._address = address
+        self._port = address[1]
 
     def write(self, packets: list[bytes]) -> None:
         for packet in packets:
             self._sock.sendto(packet, self._address)
+
+    def report(self) -> Report | None:
+        """The newest report the receiver sent back since the last call (from the port the stream goes
+        to), None if none came; anything else on the socket is dropped."""
+        newest = None
+        while True:
+            try:
+                data, peer = self._sock.recvfrom(SIZE + 1, socket.MSG_DONTWAIT)
+            except OSError:  # nothing waiting (or an ICMP error: no receiver listens yet)
+                return newest
+            if peer[1] == self._port:
+                newest = parse_report(data) or newest
 
     def close(self) -> None:
         self._sock.close()

@@ -1,0 +1,114 @@
+"""The receiver's loss reports and the sender that follows them: copies only while datagrams are lost."""
+
+import json
+import socket
+import subprocess
+
+from facedeform.protocol.report import SIZE, Report, encode_report, parse_report
+from facedeform.protocol.stream import DatagramDecoder, Datagrams, Frame, PacketEncoder
+from facedeform.sender.config import SendConfig
+from facedeform.sender.link import AFTER_LOSS, CLEAN, QUIET, LinkWatch
+from facedeform.sender.session import SendSession
+from tests.support import CLIP, DEADLINE, ROOT, SEND, finish, header, smooth_tracks, start_listener
+
+
+def stream(copies: int) -> list[bytes]:
+    enc = PacketEncoder(header(), 1)
+    pack = Datagrams(enc.header()[0], copies, 0, 0)
+    out = pack.add(enc.header())
+    for x in smooth_tracks():
+        out += pack.add(enc.frame(x, True))
+    return out + pack.add(enc.end())
+
+
+def test_a_lost_datagram_made_good_by_the_copies_counts_as_repaired_and_a_clean_link_as_nothing():
+    datagrams = stream(copies=2)
+    clean = DatagramDecoder()
+    for d in datagrams:
+        clean.receive(d)
+    assert clean.stats.repaired == clean.stats.concealed == 0
+    for lost in (5, 6, 7):  # frames datagrams, one after the keyframe's and after
+        lossy = DatagramDecoder()
+        frames = [e for d in datagrams[:lost] + datagrams[lost + 1:] for e in lossy.receive(d) if isinstance(e, Frame)]
+        assert not any(f.concealed for f in frames)
+        assert lossy.stats.repaired == 1, lost
+    twice = DatagramDecoder()  # a datagram that comes twice repairs nothing
+    for d in datagrams[:6] + datagrams[5:]:
+        twice.receive(d)
+    assert twice.stats.repaired == 0
+
+
+def test_a_report_reads_back_and_anything_else_is_not_one():
+    report = Report(2 ** 32 + 7, 3, 12)
+    data = encode_report(report)
+    assert len(data) == SIZE and parse_report(data) == Report(7, 3, 12)
+    for junk in (b"", data[:-1], data + b"\0", b"FDLX" + data[4:], data[:4] + b"\x02" + data[5:]):
+        assert parse_report(junk) is None
+    assert Report(3, 2 ** 32 - 1, 5).lost_since(Report(1, 2 ** 32 - 2, 5)) == 1  # counts wrap
+
+
+def test_the_link_goes_lean_after_a_clean_second_and_back_at_a_loss_or_when_the_reports_stop():
+    now = [0.0]
+    watch = LinkWatch(lambda: now[0])
+    assert not watch.lean  # no report: the receiver may not report at all
+    watch.hear(Report(CLEAN - 1, 0, 0))
+    assert not watch.lean
+    watch.hear(None)  # nothing new since the last call
+    watch.hear(Report(CLEAN, 0, 0))
+    assert watch.lean
+    now[0] += QUIET + 0.1  # the reports stopped: the way back may have failed
+    assert not watch.lean
+    watch.hear(Report(CLEAN + 10, 0, 0))
+    assert watch.lean
+    watch.hear(Report(CLEAN + 20, 1, 0))  # a packet repaired: the link loses
+    assert not watch.lean
+    watch.hear(Report(CLEAN + 20 + AFTER_LOSS - 1, 1, 0))
+    assert not watch.lean  # once it lost, it must stay clean far longer
+    watch.hear(Report(CLEAN + 20 + AFTER_LOSS, 1, 0))
+    assert watch.lean
+    late = LinkWatch(lambda: now[0])  # a first report with losses in it is a loss
+    late.hear(Report(100, 0, 1))
+    late.hear(Report(100 + CLEAN, 0, 1))
+    assert not late.lean
+
+
+def test_a_session_drops_its_copies_while_the_reports_are_clean_and_takes_them_back_at_a_loss():
+    heard = []
+
+    def feedback() -> Report:
+        heard.append(None)
+        n = len(heard)
+        return Report(n, max(0, n - 50), 0)  # clean for 50 frames, then a packet repaired each frame
+
+    session = SendSession(str(CLIP), SendConfig(datagrams=True))
+    session.feedback = feedback
+    decoder, frames, lean_sizes, full_sizes = DatagramDecoder(), [], [], []
+    for packets in session.packets():
+        frames += [e for p in packets for e in decoder.receive(p) if isinstance(e, Frame)]
+        (lean_sizes if session.datagrams.copies == 0 else full_sizes).append(sum(map(len, packets)))
+    assert [f.seq for f in frames] == list(range(75)) and not any(f.concealed for f in frames)
+    assert session.lean_frames == 51 - CLEAN  # from the 25th report to the 50th, the last clean one
+    lean = sum(lean_sizes) / session.lean_frames  # bytes a frame, the header aside
+    assert lean < 0.6 * sum(full_sizes[1:]) / (75 - session.lean_frames)
+    assert session.datagrams.copies == 3 and session.encoder.frames_per_packet == 1
+
+
+def test_fd_send_over_udp_sends_lean_while_fd_recv_reports_no_loss(tmp_path):
+    """A real receiver on loopback reports; the same call to a socket that does not report keeps its
+    copies. Every frame arrives either way."""
+    proc, port = start_listener("udp://127.0.0.1:0", tmp_path, "--timeout", "3")
+    sent = subprocess.run(SEND + [str(CLIP), "--realtime", "--json", "-o", f"udp://127.0.0.1:{port}"],
+                          capture_output=True, cwd=ROOT, timeout=DEADLINE)
+    assert sent.returncode == 0, sent.stderr.decode()
+    reported = json.loads(sent.stderr.decode().strip().splitlines()[-1])
+    stats, _ = finish(proc)
+    assert stats["frames"] == stats["written"] == 75 and stats["concealed"] == 0
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as quiet:
+        quiet.bind(("127.0.0.1", 0))
+        sent = subprocess.run(SEND + [str(CLIP), "--realtime", "--json", "-o",
+                                      f"udp://127.0.0.1:{quiet.getsockname()[1]}"],
+                              capture_output=True, cwd=ROOT, timeout=DEADLINE)
+    assert sent.returncode == 0, sent.stderr.decode()
+    unreported = json.loads(sent.stderr.decode().strip().splitlines()[-1])
+    assert unreported["lean_frames"] == 0 and reported["lean_frames"] >= 25
+    assert reported["kbit_per_s"] < 0.8 * unreported["kbit_per_s"]
