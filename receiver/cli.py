@@ -58,6 +58,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="with --listen udp://: keep each call's stream header in DIR, and start a call whose "
                         "header is there at its first keyframe (a receiver restarted mid-call) instead of "
                         "waiting for the sender to repeat it")
+    p.add_argument("--no-reports", action="store_true",
+                   help="with --listen udp://: send the sender no loss reports (by default one of 17 bytes "
+                        "every 0.5 s while the stream comes, so that fd-send sends its copies only while "
+                        "datagrams are lost; without them it always sends them: about twice the bits)")
     p.add_argument("--timeout", type=number(0.1, 3600), default=5.0, metavar="S",
                    help="with --listen: end after S seconds without data once the stream has started (default 5)")
     p.add_argument("--dump", metavar="FILE.npz", help="also write the decoded parameters of every frame")
@@ -111,7 +115,7 @@ def _run(args) -> int:
     # install, which compiles the rasteriser, says so instead of seeming to hang
     with slow_step("fd-recv", WARMING_UP, args.quiet or args.json):
         warm_up()
-    listener = Listener(args.listen, args.timeout, key, args.headers) if args.listen else None
+    listener = Listener(args.listen, args.timeout, key, args.headers, not args.no_reports) if args.listen else None
     if listener and not args.quiet:
         print(f"fd-recv: listening on {listener.url}", file=sys.stderr, flush=True)
     source = listener.source() if listener else open_file(args.input or "-", sys.stdin.buffer, key)

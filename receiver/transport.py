@@ -105,12 +105,13 @@ class UdpSource:
     queues none, and the reader waits only if rendering falls behind the
     real stream). ``headers``: where the headers of earlier calls are kept
     (a receiver restarted mid-call starts at the first keyframe that names one).
-    Without a key it sends a loss report (protocol/report.py) back to where the stream comes
-    from every REPORT_EVERY seconds, so that the sender sends its copies only while they are needed.
+    Without a key, and unless ``reports`` is False, it sends a loss report (protocol/report.py) back to
+    where the stream comes from every REPORT_EVERY seconds, so that the sender sends its copies only
+    while they are needed.
     """
 
     def __init__(self, sock: socket.socket, idle: float, key: bytes | None = None,
-                 headers: "HeaderStore | None" = None) -> None:
+                 headers: "HeaderStore | None" = None, reports: bool = True) -> None:
         known = headers.load() if headers is not None else ()
         self.decoder = DatagramDecoder(known) if key is None else SecureDatagramDecoder(key, known=known)
         self._headers = headers
@@ -118,7 +119,7 @@ class UdpSource:
         self.timed_out = False
         self._sock, self._idle = sock, idle
         self._sealed = False  # a sealed stream's preamble arrived
-        self._reports = key is None
+        self._reports = reports and key is None
         self._received = 0  # datagrams of the stream
         self._reported = -REPORT_EVERY  # when the last report went
         self._queue: queue.Queue = queue.Queue(QUEUE)
@@ -270,8 +271,10 @@ def parse_listen(url: str) -> tuple[str, str, int]:
 class Listener:
     """A bound socket for ``--listen``; :meth:`source` waits for the stream (blocking)."""
 
-    def __init__(self, url: str, idle: float, key: bytes | None = None, headers: str | None = None) -> None:
+    def __init__(self, url: str, idle: float, key: bytes | None = None, headers: str | None = None,
+                 reports: bool = True) -> None:
         self.scheme, host, port = parse_listen(url)
+        self._reports = reports
         self._headers = None if headers is None else HeaderStore(headers)
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         kind = socket.SOCK_DGRAM if self.scheme == "udp" else socket.SOCK_STREAM
@@ -292,7 +295,7 @@ class Listener:
     def source(self):
         """UDP: the datagram source at once; TCP: the first connection's bytes, once it is accepted."""
         if self.scheme == "udp":
-            return UdpSource(self._sock, self._idle, self._key, self._headers)
+            return UdpSource(self._sock, self._idle, self._key, self._headers, self._reports)
         try:
             conn, first = self._first_stream()
         finally:
