@@ -32,6 +32,10 @@ class Report:
     repaired: int
     concealed: int
 
+    def datagrams_since(self, before: "Report") -> int:
+        """Datagrams received between ``before`` and this report."""
+        return (self.datagrams - before.datagrams) % _WRAP
+
     def lost_since(self, before: "Report") -> int:
         """Frames packets repaired and frames concealed between ``before`` and this report."""
         return (self.repaired - before.repaired) % _WRAP + (self.concealed - before.concealed) % _WRAP

@@ -47,4 +47,4 @@ class LinkWatch:
     def lean(self) -> bool:
         last, start = self._last, self._clean_from
         return (last is not None and start is not None and self._clock() - self._heard <= QUIET
-                and (last.datagrams - start.datagrams) % (1 << 32) >= self._clean)
+                and last.datagrams_since(start) >= self._clean)

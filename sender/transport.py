@@ -41,7 +41,6 @@ class DatagramSink:
     def __init__(self, address: tuple[str, int]) -> None:
         self._sock = socket.socket(_family(address), socket.SOCK_DGRAM)
         self._address = address
-        self._port = address[1]
 
     def write(self, packets: list[bytes]) -> None:
         for packet in packets:
@@ -56,7 +55,7 @@ class DatagramSink:
                 data, peer = self._sock.recvfrom(SIZE + 1, socket.MSG_DONTWAIT)
             except OSError:  # nothing waiting (or an ICMP error: no receiver listens yet)
                 return newest
-            if peer[1] == self._port:
+            if peer[1] == self._address[1]:
                 newest = parse_report(data) or newest
 
     def close(self) -> None:

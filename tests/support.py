@@ -27,7 +27,7 @@ from facedeform.codec.face_file.format import (
 from facedeform.codec.model.face_model import ReferencePicture, load_base_face, mouth_vertices
 from facedeform.codec.render.picture import Placement
 from facedeform.common.parameters import PAPER_PARAMS
-from facedeform.protocol.stream import Header, PacketEncoder, StreamDecoder, StreamEncoder, steps_for
+from facedeform.protocol.stream import Datagrams, Header, PacketEncoder, StreamDecoder, StreamEncoder, steps_for
 from facedeform.receiver.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -107,6 +107,19 @@ def stream_packets(params, fpp=2):
     *last, end = enc.end()
     out += [(p, (first, len(params) - 1)) for p in last] + [(end, None)]
     return out
+
+
+def stream_datagrams(params, copies=1, header_every=0, eager=0, sealer=None) -> tuple[list[bytes], list[np.ndarray]]:
+    """(datagrams, what the encoder says the receiver shows for each frame) of a stream at 2 frames per packet."""
+    enc = PacketEncoder(header(), 2)
+    head = enc.header()
+    pack = Datagrams(head[0], copies, header_every, eager, sealer)
+    out = ([sealer.preamble()] if sealer else []) + pack.add(head)
+    sent = []
+    for x in params:
+        out += pack.add(enc.frame(x, True))
+        sent.append(enc.reconstruction)
+    return out + pack.add(enc.end()), sent
 
 
 def start_listener(url, tmp_path, *extra):

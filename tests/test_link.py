@@ -4,24 +4,15 @@ import json
 import subprocess
 
 from facedeform.protocol.report import SIZE, Report, encode_report, parse_report
-from facedeform.protocol.stream import DatagramDecoder, Datagrams, Frame, PacketEncoder
+from facedeform.protocol.stream import DatagramDecoder, Frame
 from facedeform.sender.config import SendConfig
 from facedeform.sender.link import AFTER_LOSS, CLEAN, QUIET, LinkWatch
 from facedeform.sender.session import SendSession
-from tests.support import CLIP, DEADLINE, ROOT, SEND, finish, header, smooth_tracks, start_listener
-
-
-def stream(copies: int) -> list[bytes]:
-    enc = PacketEncoder(header(), 1)
-    pack = Datagrams(enc.header()[0], copies, 0, 0)
-    out = pack.add(enc.header())
-    for x in smooth_tracks():
-        out += pack.add(enc.frame(x, True))
-    return out + pack.add(enc.end())
+from tests.support import CLIP, DEADLINE, ROOT, SEND, finish, smooth_tracks, start_listener, stream_datagrams
 
 
 def test_a_lost_datagram_made_good_by_the_copies_counts_as_repaired_and_a_clean_link_as_nothing():
-    datagrams = stream(copies=2)
+    datagrams, _ = stream_datagrams(smooth_tracks(), copies=2)
     clean = DatagramDecoder()
     for d in datagrams:
         clean.receive(d)
@@ -92,22 +83,22 @@ def test_a_session_drops_its_copies_while_the_reports_are_clean_and_takes_them_b
     assert session.datagrams.copies == 3 and session.encoder.frames_per_packet == 1
 
 
+def call_over_udp(tmp_path, *receiver_options) -> dict:
+    """fd-send's statistics for the bundled clip sent live to fd-recv over loopback UDP, once fd-recv
+    has drawn every frame from its data."""
+    proc, port = start_listener("udp://127.0.0.1:0", tmp_path, "--timeout", "3", *receiver_options)
+    sent = subprocess.run(SEND + [str(CLIP), "--realtime", "--json", "-o", f"udp://127.0.0.1:{port}"],
+                          capture_output=True, cwd=ROOT, timeout=DEADLINE)
+    assert sent.returncode == 0, sent.stderr.decode()
+    stats, _ = finish(proc)
+    assert stats["frames"] == stats["written"] == 75 and stats["concealed"] == 0
+    return json.loads(sent.stderr.decode().strip().splitlines()[-1])
+
+
 def test_fd_send_over_udp_sends_lean_while_fd_recv_reports_no_loss(tmp_path):
     """A real receiver on loopback reports; the same call to one told not to (--no-reports) keeps its
     copies. Every frame arrives either way."""
-    proc, port = start_listener("udp://127.0.0.1:0", tmp_path, "--timeout", "3")
-    sent = subprocess.run(SEND + [str(CLIP), "--realtime", "--json", "-o", f"udp://127.0.0.1:{port}"],
-                          capture_output=True, cwd=ROOT, timeout=DEADLINE)
-    assert sent.returncode == 0, sent.stderr.decode()
-    reported = json.loads(sent.stderr.decode().strip().splitlines()[-1])
-    stats, _ = finish(proc)
-    assert stats["frames"] == stats["written"] == 75 and stats["concealed"] == 0
-    proc, port = start_listener("udp://127.0.0.1:0", tmp_path, "--timeout", "3", "--no-reports")
-    sent = subprocess.run(SEND + [str(CLIP), "--realtime", "--json", "-o", f"udp://127.0.0.1:{port}"],
-                          capture_output=True, cwd=ROOT, timeout=DEADLINE)
-    assert sent.returncode == 0, sent.stderr.decode()
-    unreported = json.loads(sent.stderr.decode().strip().splitlines()[-1])
-    stats, _ = finish(proc)
-    assert stats["frames"] == stats["written"] == 75 and stats["concealed"] == 0
+    reported = call_over_udp(tmp_path)
+    unreported = call_over_udp(tmp_path, "--no-reports")
     assert unreported["lean_frames"] == 0 and reported["lean_frames"] >= 25
     assert reported["kbit_per_s"] < 0.8 * unreported["kbit_per_s"]

@@ -17,22 +17,9 @@ from facedeform.protocol.stream import DatagramDecoder, Datagrams, Frame, Header
 from facedeform.sender.config import DATAGRAM_FRAMES
 from facedeform.sender.session import DATAGRAM_KEYS
 from facedeform.sender.transport import open_sink
-from tests.support import FPS, KEY, N, finish, header, parse_y4m, smooth_tracks, start_listener
+from tests.support import FPS, KEY, N, finish, header, parse_y4m, smooth_tracks, start_listener, stream_datagrams
 
 RNG_SEEDS = range(5)
-
-
-def datagrams(params, copies=1, header_every=0, eager=0, sealer=None) -> tuple[list[bytes], list[np.ndarray]]:
-    """(datagrams, what the encoder says the receiver shows for each frame) of a stream at 2 frames per packet."""
-    enc = PacketEncoder(header(), 2)
-    head = enc.header()
-    pack = Datagrams(head[0], copies, header_every, eager, sealer)
-    out = ([sealer.preamble()] if sealer else []) + pack.add(head)
-    sent = []
-    for x in params:
-        out += pack.add(enc.frame(x, True))
-        sent.append(enc.reconstruction)
-    return out + pack.add(enc.end()), sent
 
 
 def receive(dec, stream: list[bytes]) -> list[Frame]:
@@ -52,7 +39,7 @@ def test_five_percent_random_loss_keeps_95_percent_of_frames_good_and_delivers_e
     """A minute of call: a datagram lost alone costs nothing; two in a row (a quarter of a percent)
     cost the frames up to the next keyframe."""
     n = 1500
-    stream, sent = datagrams(smooth_tracks(n))
+    stream, sent = stream_datagrams(smooth_tracks(n))
     got = receive(DatagramDecoder(), random_loss(stream, 0.05, seed))
     assert [f.seq for f in got] == list(range(n))
     good = [f for f in got if not f.concealed]
@@ -65,7 +52,7 @@ def test_one_lost_datagram_costs_no_frame_and_without_copies_only_a_concealed_se
     frames up to the next keyframe are, interpolated between the last good frame and it."""
     params = smooth_tracks()
     for copies in (1, 0):
-        stream, sent = datagrams(params, copies)
+        stream, sent = stream_datagrams(params, copies)
         for lost in range(2, len(stream) - 2):
             got = receive(DatagramDecoder(), stream[:lost] + stream[lost + 1:])
             assert [f.seq for f in got] == list(range(N))
@@ -142,7 +129,7 @@ def test_with_fd_sends_copies_a_burst_of_three_costs_no_frame(at):
     """The burst that froze the face with one copy: with COPIES (three) the datagram after it carries
     the three lost packets again, and every frame is drawn exactly as the sender coded it."""
     params = smooth_tracks()
-    stream, sent = datagrams(params, COPIES)
+    stream, sent = stream_datagrams(params, COPIES)
     got = receive(DatagramDecoder(), stream[:at] + stream[at + 3:])
     assert [f.seq for f in got] == list(range(len(params))) and not any(f.concealed for f in got)
     np.testing.assert_allclose([f.params for f in got], sent, atol=1e-9)
@@ -150,7 +137,7 @@ def test_with_fd_sends_copies_a_burst_of_three_costs_no_frame(at):
 
 def test_copies_and_sealing_survive_loss_together():
     sealer = SecureSealer(b"k" * 32)
-    stream, _ = datagrams(smooth_tracks(), sealer=sealer)
+    stream, _ = stream_datagrams(smooth_tracks(), sealer=sealer)
     dec = SecureDatagramDecoder(b"k" * 32)
     got = receive(dec, random_loss(stream, 0.05, 1, keep=2))
     assert [f.seq for f in got] == list(range(N)) and sum(f.concealed for f in got) <= 0.05 * N
@@ -160,14 +147,14 @@ def test_copies_and_sealing_survive_loss_together():
 def test_copies_cost_about_one_packet_more_per_datagram():
     """What the redundancy costs, as docs/bitstream.md reports it: each delta's datagram carries one
     packet more, so the frames' bytes about double; the header and end are sent as they are."""
-    plain, _ = datagrams(smooth_tracks(), copies=0)
-    copied, _ = datagrams(smooth_tracks(), copies=1)
+    plain, _ = stream_datagrams(smooth_tracks(), copies=0)
+    copied, _ = stream_datagrams(smooth_tracks(), copies=1)
     ratio = sum(map(len, copied[1:])) / sum(map(len, plain[1:]))
     assert 1.6 < ratio < 2.1
 
 
 def test_a_receiver_joining_late_renders_from_the_keyframe_after_the_header():
-    stream, sent = datagrams(smooth_tracks(), header_every=1)
+    stream, sent = stream_datagrams(smooth_tracks(), header_every=1)
     start = len(stream) // 3  # mid-call: the first header and keyframes are gone
     got = receive(DatagramDecoder(), stream[start:])
     first = got[0].seq
@@ -178,7 +165,7 @@ def test_a_receiver_joining_late_renders_from_the_keyframe_after_the_header():
 
 def test_a_sealed_stream_can_be_joined_late_too():
     """The preamble goes again with the header; copies of it are ignored once one is taken."""
-    stream, sent = datagrams(smooth_tracks(), header_every=1, sealer=SecureSealer(b"k" * 32))
+    stream, sent = stream_datagrams(smooth_tracks(), header_every=1, sealer=SecureSealer(b"k" * 32))
     dec = SecureDatagramDecoder(b"k" * 32)
     got = receive(dec, stream[len(stream) // 3:])
     first = got[0].seq
@@ -189,7 +176,7 @@ def test_a_sealed_stream_can_be_joined_late_too():
 
 def test_a_receiver_holding_the_header_starts_at_the_first_keyframe_and_ignores_others():
     """No header is sent again: the keyframes name it, and the receiver holds it already."""
-    stream, _ = datagrams(smooth_tracks(), eager=0, header_every=0)
+    stream, _ = stream_datagrams(smooth_tracks(), eager=0, header_every=0)
     start = len(stream) // 3
     other = Header(25.0, header().names, header().steps * 2, header().face_id, key_interval=KEY)
     assert not receive(DatagramDecoder([other]), stream[start:])
@@ -226,7 +213,7 @@ def free_udp_port() -> int:
 
 
 def test_over_udp_five_percent_loss_keeps_95_percent_good(tmp_path):
-    stream, _ = datagrams(smooth_tracks())
+    stream, _ = stream_datagrams(smooth_tracks())
     proc, port = start_listener("udp://127.0.0.1:0", tmp_path)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         for d in random_loss(stream, 0.05, 11):
@@ -241,7 +228,7 @@ def test_over_udp_five_percent_loss_keeps_95_percent_good(tmp_path):
 @pytest.mark.slow
 def test_a_receiver_started_after_the_sender_renders_from_the_next_keyframe(tmp_path):
     """The sender is already sending at the stream's rate when fd-recv starts listening."""
-    stream, _ = datagrams(smooth_tracks(), header_every=1)
+    stream, _ = stream_datagrams(smooth_tracks(), header_every=1)
     port = free_udp_port()
     sent_into_nothing, listening = threading.Event(), threading.Event()
 
@@ -308,7 +295,7 @@ def test_a_tcp_sender_waits_for_the_receiver(monkeypatch):
 @pytest.mark.slow
 def test_a_receiver_restarted_mid_call_starts_at_once_from_the_headers_it_kept(tmp_path):
     """The header is never sent again; fd-recv --headers kept it from the call's start."""
-    stream, _ = datagrams(smooth_tracks(), eager=0, header_every=0)
+    stream, _ = stream_datagrams(smooth_tracks(), eager=0, header_every=0)
     kept = tmp_path / "headers"
     kept.mkdir()
     for run, part in (("first", stream[:10]), ("again", stream[len(stream) // 3:])):
