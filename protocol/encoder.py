@@ -29,10 +29,11 @@ from facedeform.protocol.framing import (
     inner_check,
     kind_of,
     packet_ends,
+    read_varint,
     type_byte,
     varint,
 )
-from facedeform.protocol.header import Header, encode_header
+from facedeform.protocol.header import ID_BYTES, Header, encode_header
 from facedeform.protocol.priors import models_for
 from facedeform.protocol.quantise import DEAD_ZONE, hold_or_round
 
@@ -65,7 +66,9 @@ class PacketEncoder:
     with the header's basis each coordinate's): see :func:`protocol.quantise.hold_or_round`.
     It holds across keyframes too, so a still value does not jump once a second. The receiver
     does not know it, so :attr:`dead_zone` may change between frames (``protocol.rate.RateKeeper``),
-    and so may :attr:`frames_per_packet` (sender/link.py).
+    and so may :attr:`frames_per_packet` and :attr:`key_every` (sender/link.py): a keyframe goes at
+    every ``key_every``-th of the header's key places (a decoder takes a delta anywhere after a key;
+    packets still end at every key place, since the decoder's rule for where a packet ends is fixed).
     """
 
     def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"",
@@ -76,6 +79,7 @@ class PacketEncoder:
             raise BitstreamError(f"header announces {header.model_size} model bytes, got {len(model)}")
         self._h, self.frames_per_packet, self._model = header, frames_per_packet, model
         self.dead_zone = dead_zone
+        self.key_every = 1
         self._new_bit = models_for(header)
         self._frames = 0
         self._held: list[int] | None = None
@@ -126,7 +130,8 @@ class PacketEncoder:
             raise BitstreamError("parameter out of range for the stream's steps")
         self._held, self.reconstruction = values, self._h.values(values)
         face = bool(face_seen)
-        if coded % self._h.key_interval == 0:
+        place, off = divmod(coded, self._h.key_interval)
+        if off == 0 and place % self.key_every == 0:
             self._group = group = GroupState(len(values), self._h.skip_static, self._new_bit)
             coder = self._start(KEY, coded)
             group.encode_key(coder, values, face)
@@ -206,13 +211,17 @@ class Datagrams:
     REPEAT_BITS a keyframe pays for, at least every HEADER_EVERY-th), so a receiver
     started mid-call renders from the keyframe after it; the end mark goes
     twice. With a ``sealer`` every datagram is sealed, and the preamble goes
-    again with the header. Model chunks are not repeated: a late receiver
+    again with the header. Given the header's ``key_interval``, keyframes are counted by their
+    places (a keyframe's frame number over it), so that the header keeps its pace in time where
+    the encoder sends a keyframe only at some places (:attr:`PacketEncoder.key_every`); once
+    :attr:`joined`, the eager repeats stop. Model chunks are not repeated: a late receiver
     draws the face it has. What each costs is in docs/bitstream.md, "Datagrams".
     :attr:`copies` may change between packets: a decoder takes a datagram with any number.
     """
 
     def __init__(self, header_packet: bytes, copies: int = COPIES, header_every: int | None = None,
-                 eager: int = HEADER_EAGER, sealer=None, eager_every: int = 1) -> None:
+                 eager: int = HEADER_EAGER, sealer=None, eager_every: int = 1, key_interval: int | None = None
+                 ) -> None:
         if not 0 <= copies <= MAX_REDUNDANCY:
             raise BitstreamError(f"redundancy must be 0-{MAX_REDUNDANCY} packets, not {copies!r}")
         self._header, self.copies, self._sealer = header_packet, copies, sealer
@@ -221,6 +230,11 @@ class Datagrams:
         self._every, self._eager, self._eager_every = header_every, eager, max(1, eager_every)
         self._recent: list[bytes] = []  # frames packets since the last keyframe, the newest last
         self._keys = 0
+        self._last_key = -1  # the place of the last keyframe (the first is place 0 when not counted by places)
+        self._key_interval = key_interval
+        #: The receiver reported (sender/link.py), so it holds the header: the eager repeats, for a
+        #: receiver started a moment after the sender, stop; the later ones stay, for one that restarts.
+        self.joined = False
         self.repeated = 0  # bytes of the header's repeats so far
 
     def repeat_rate(self, key_seconds: float) -> float:
@@ -242,8 +256,10 @@ class Datagrams:
                 out += self._seal([packet])
                 continue
             if kind == KEY:
-                k, self._keys = self._keys, self._keys + 1
-                if k and ((k <= self._eager and k % self._eager_every == 0) or (self._every and k % self._every == 0)):
+                k, last = self._key_place(packet), self._last_key
+                self._last_key = k
+                if k and ((not self.joined and k <= self._eager and _passes(self._eager_every, last, k))
+                          or (self._every and _passes(self._every, last, k))):
                     repeat = self._seal([self._header], preamble=True)
                     self.repeated += sum(map(len, repeat))
                     out += repeat
@@ -257,10 +273,25 @@ class Datagrams:
                 self._recent = ([] if kind == KEY else self._recent[1 - MAX_REDUNDANCY:]) + [packet]
         return out
 
+    def _key_place(self, packet: bytes) -> int:
+        """The keyframe ``packet``'s place: its first frame's number over the key interval, or
+        without one how many keyframes came before it."""
+        if self._key_interval is None:
+            self._keys += 1
+            return self._keys - 1
+        got = read_varint(packet, 2 + ID_BYTES, MAX_FRAME)  # after the sync, type and header id bytes
+        assert got is not None, "a keyframe packet of the encoder's own"
+        return got[0] // self._key_interval
+
     def _seal(self, datagrams: list[bytes], preamble: bool = False) -> list[bytes]:
         if self._sealer is None:
             return datagrams
         return ([self._sealer.preamble()] if preamble else []) + self._sealer.seal_all(datagrams)
+
+
+def _passes(n: int, last: int, place: int) -> bool:
+    """Whether a multiple of ``n`` lies after key place ``last`` and at or before ``place``."""
+    return place // n > last // n
 
 
 def frame_bytes(packets: list[bytes], sealed: bool = False) -> bytes:

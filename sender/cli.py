@@ -124,7 +124,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help=f"over udp://, the frames packets before it that each datagram carries again "
                         f"({_span('redundancy')}; default %(default)s): up to N datagrams lost in a row cost no "
                         "frame, and each copy adds about the frames' own bits again (docs/bitstream.md, Bursts); "
-                        "while fd-recv reports no loss, none and two frames a datagram (Loss reports)")
+                        "while fd-recv reports no loss, none, two frames a datagram and half the keyframes "
+                        "(Loss reports)")
     p.add_argument("--key", metavar="FILE",
                    help="encrypt and authenticate every packet (face model included) with this pre-shared "
                         "key (fd-keygen; docs/security.md); also opens a --face file sealed with it")

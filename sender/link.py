@@ -1,15 +1,15 @@
 """Whether the link loses datagrams now, from the receiver's loss reports (protocol/report.py).
 
-Over UDP fd-send carries each frames packet again in the three datagrams after it and sends one
-frame a datagram (sender.config.DATAGRAM_FRAMES), so that bursts of lost datagrams cost few frames:
-about five times the bits of the same stream to a file (docs/bitstream.md). On a link that loses
-nothing that is waste. While the receiver's reports say that no datagram was lost over the last
-CLEAN datagrams (AFTER_LOSS once one was: a link that lost once loses again, and at 1 % random loss,
-a datagram every 4 s, each loss while lean would cost frames), fd-send sends no copies and two
-frames a datagram; the first report of a loss, or QUIET seconds without a report (the way back
-failed, or the receiver does not report), brings the copies back. Keyframes keep their schedule
-either way: a datagram lost while lean costs the frames up to the next one (at most 0.24 s), and
-the report of it, within REPORT_EVERY, ends the lean spell.
+Over UDP fd-send carries each frames packet again in the three datagrams after it, sends one frame
+a datagram (sender.config.DATAGRAM_FRAMES) and a keyframe every 0.24 s, so that bursts of lost
+datagrams cost few frames: about five times the bits of the same stream to a file
+(docs/bitstream.md). On a link that loses nothing that is waste. From the first report that shows
+no loss (AFTER_LOSS clean datagrams once one was: a link that lost once loses again, and at 1 %
+random loss, a datagram every 4 s, each loss while lean would cost frames), fd-send sends no copies,
+two frames a datagram and a keyframe at every LEAN_KEYS-th of its places; the first report of a
+loss, or QUIET seconds without a report (the way back failed, or the receiver does not report),
+brings the copies and every keyframe back. A datagram lost while lean costs the frames up to the
+next keyframe, and the report of it, within REPORT_EVERY, ends the lean spell.
 """
 
 import time
@@ -17,8 +17,14 @@ from collections.abc import Callable
 
 from facedeform.protocol.report import REPORT_EVERY, Report
 
-CLEAN = 25  # datagrams reported without a loss before the copies stop, while none was lost (a second)
+#: Datagrams reported without a loss before the copies stop, while none was lost: the first report
+#: that shows none. (25, a second's, had left a 5-second call's first 1.5 s at the full cost; a loss
+#: while lean costs the same few frames once either way, docs/bitstream.md.)
+CLEAN = 1
 AFTER_LOSS = 500  # the same once a loss was reported (20 s)
+#: While lean, a keyframe at every so many of the header's key places (0.24 s apart at fd-send's
+#: defaults): a datagram lost then costs at most twice that many places' frames.
+LEAN_KEYS = 2
 QUIET = 3 * REPORT_EVERY  # seconds without a report after which the copies come back
 _START = Report(0, 0, 0)
 
@@ -42,6 +48,11 @@ class LinkWatch:
         elif self._clean_from is None:
             self._clean_from = _START
         self._last, self._heard = report, self._clock()
+
+    @property
+    def heard(self) -> bool:
+        """A report came: the receiver decodes the stream."""
+        return self._last is not None
 
     @property
     def lean(self) -> bool:

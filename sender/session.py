@@ -37,7 +37,7 @@ from facedeform.protocol.stream import (
 )
 from facedeform.sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing, resolve_layout
 from facedeform.sender.config import DATAGRAM_FRAMES, SPEAKER_RATE, STREAM_FRAMES, SendConfig, parameter_rate
-from facedeform.sender.link import LinkWatch
+from facedeform.sender.link import LEAN_KEYS, LinkWatch
 from facedeform.sender.picture_layer import PictureLayer, layer_pays
 from facedeform.sender.pixel_pose import PixelPose, refines
 from facedeform.sender.sources import open_source
@@ -223,7 +223,8 @@ class SendSession:
         keys = key_seconds(self.header)
         self.datagrams = Datagrams(self.encoder.header()[0], self.config.redundancy,
                                    eager=round(EAGER_SECONDS / keys), sealer=self.sealer,
-                                   eager_every=round(EAGER_GAP / keys)) if self.config.datagrams else None
+                                   eager_every=round(EAGER_GAP / keys),
+                                   key_interval=self.header.key_interval) if self.config.datagrams else None
 
     def packets(self) -> Iterator[list[bytes]]:
         """Lists of packets: the header once a face is known (a clip without one sends nothing),
@@ -280,14 +281,17 @@ class SendSession:
         yield self.end()
 
     def _follow_link(self) -> None:
-        """Over datagrams, with the receiver's reports and no key: the copies and a frame a datagram while
-        it loses datagrams or may, none and STREAM_FRAMES (or the frames a packet asked) while it does not."""
+        """Over datagrams, with the receiver's reports and no key: the copies, a frame a datagram and a
+        keyframe at every key place while it loses datagrams or may; none, STREAM_FRAMES (or the frames
+        a packet asked) and a keyframe every LEAN_KEYS places while it does not."""
         if self.feedback is None or self.datagrams is None or self.sealer is not None:
             return
         self._link.hear(self.feedback())
         lean = self._link.lean
         self.datagrams.copies = 0 if lean else self.config.redundancy
         self.encoder.frames_per_packet = self.config.frames_per_packet or (STREAM_FRAMES if lean else DATAGRAM_FRAMES)
+        self.encoder.key_every = LEAN_KEYS if lean else 1
+        self.datagrams.joined = self._link.heard
         self.lean_frames += lean
 
     def _check_room(self, quality: int, sample: Sequence[tuple[np.ndarray, bool]]) -> None:

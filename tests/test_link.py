@@ -1,4 +1,5 @@
-"""The receiver's loss reports and the sender that follows them: copies only while datagrams are lost."""
+"""The receiver's loss reports and the sender that follows them: copies, and a keyframe at every key place,
+only while datagrams are lost."""
 
 import json
 import subprocess
@@ -6,7 +7,7 @@ import subprocess
 from facedeform.protocol.report import SIZE, Report, encode_report, parse_report
 from facedeform.protocol.stream import DatagramDecoder, Frame
 from facedeform.sender.config import SendConfig
-from facedeform.sender.link import AFTER_LOSS, CLEAN, QUIET, LinkWatch
+from facedeform.sender.link import AFTER_LOSS, CLEAN, LEAN_KEYS, QUIET, LinkWatch
 from facedeform.sender.session import SendSession
 from tests.support import CLIP, DEADLINE, ROOT, SEND, finish, smooth_tracks, start_listener, stream_datagrams
 
@@ -37,15 +38,15 @@ def test_a_report_reads_back_and_anything_else_is_not_one():
     assert Report(3, 2 ** 32 - 1, 5).lost_since(Report(1, 2 ** 32 - 2, 5)) == 1  # counts wrap
 
 
-def test_the_link_goes_lean_after_a_clean_second_and_back_at_a_loss_or_when_the_reports_stop():
+def test_the_link_goes_lean_at_a_clean_report_and_back_at_a_loss_or_when_the_reports_stop():
     now = [0.0]
     watch = LinkWatch(lambda: now[0])
-    assert not watch.lean  # no report: the receiver may not report at all
+    assert not watch.lean and not watch.heard  # no report: the receiver may not report at all
     watch.hear(Report(CLEAN - 1, 0, 0))
     assert not watch.lean
     watch.hear(None)  # nothing new since the last call
     watch.hear(Report(CLEAN, 0, 0))
-    assert watch.lean
+    assert watch.lean and watch.heard
     now[0] += QUIET + 0.1  # the reports stopped: the way back may have failed
     assert not watch.lean
     watch.hear(Report(CLEAN + 10, 0, 0))
@@ -62,7 +63,7 @@ def test_the_link_goes_lean_after_a_clean_second_and_back_at_a_loss_or_when_the_
     assert not late.lean
 
 
-def test_a_session_drops_its_copies_while_the_reports_are_clean_and_takes_them_back_at_a_loss():
+def test_a_session_drops_its_copies_and_keyframes_while_the_reports_are_clean_and_takes_them_back_at_a_loss():
     heard = []
 
     def feedback() -> Report:
@@ -72,15 +73,19 @@ def test_a_session_drops_its_copies_while_the_reports_are_clean_and_takes_them_b
 
     session = SendSession(str(CLIP), SendConfig(datagrams=True))
     session.feedback = feedback
-    decoder, frames, lean_sizes, full_sizes = DatagramDecoder(), [], [], []
+    decoder, frames, lean_sizes, full_sizes, keys = DatagramDecoder(), [], [], [], {True: 0, False: 0}  # keyframes
     for packets in session.packets():
         frames += [e for p in packets for e in decoder.receive(p) if isinstance(e, Frame)]
-        (lean_sizes if session.datagrams.copies == 0 else full_sizes).append(sum(map(len, packets)))
+        lean = session.datagrams.copies == 0
+        (lean_sizes if lean else full_sizes).append(sum(map(len, packets)))
+        keys[lean] += sum(session.header.ident in p for p in packets[-1:])  # the frame's own datagram
     assert [f.seq for f in frames] == list(range(75)) and not any(f.concealed for f in frames)
-    assert session.lean_frames == 51 - CLEAN  # from the 25th report to the 50th, the last clean one
+    assert session.lean_frames == 51 - CLEAN  # from the first report to the 50th, the last clean one
+    places = session.header.key_interval
+    assert keys[True] <= -(-session.lean_frames // (LEAN_KEYS * places)) + 1  # lean: every LEAN_KEYS-th place
     lean = sum(lean_sizes) / session.lean_frames  # bytes a frame, the header aside
     assert lean < 0.6 * sum(full_sizes[1:]) / (75 - session.lean_frames)
-    assert session.datagrams.copies == 3 and session.encoder.frames_per_packet == 1
+    assert session.datagrams.copies == 3 and session.encoder.frames_per_packet == 1 and session.encoder.key_every == 1
 
 
 def call_over_udp(tmp_path, *receiver_options) -> dict:

@@ -197,6 +197,37 @@ def test_the_header_goes_again_before_the_first_keyframes_then_every_nth():
     assert [i for i, d in enumerate(out) if d == head[0]] == [0] + [keys[n] - 1 for n in (1, 2, 5, 10)]
 
 
+def test_keyframes_at_some_key_places_decode_the_same_and_keep_the_headers_pace():
+    """An encoder told to key only every 2nd key place (fd-send while the link is clean,
+    sender/link.LEAN_KEYS) from the third place on: the decoder takes its deltas at the places it
+    skipped and outputs the same values as a stream keyed at every place; the header's repeats,
+    counted by key place, keep their place in time, and stop before the eager keyframes once the
+    receiver has joined."""
+    tracks = smooth_tracks(KEY * 12)
+    streams = {}
+    for every in (1, 2):
+        enc = PacketEncoder(header(), 2)
+        head = enc.header()
+        pack = Datagrams(head[0], copies=0, header_every=3, eager=4, key_interval=KEY)
+        out = pack.add(head)
+        for i, x in enumerate(tracks):
+            enc.key_every = every if i >= 2 * KEY else 1
+            out += pack.add(enc.frame(x, True))
+        streams[every] = out + pack.add(enc.end())
+    keyed, lean = ([i for i, d in enumerate(s) if header().ident in d] for s in (streams[1], streams[2]))
+    assert len(keyed) == 12 and len(lean) == 2 + 5  # places 0, 1, then 2, 4, 6, 8, 10
+    got = [[f.params for f in receive(DatagramDecoder([header()]), streams[e])] for e in (1, 2)]
+    assert len(got[0]) == len(got[1]) == KEY * 12 and np.array_equal(got[0], got[1])
+    repeats = [i for i, d in enumerate(streams[2]) if d == streams[2][0]]
+    # eager at places 1, 2, 4 (each keyframe up to the 4th place), then at 6 and 10 (past 6 and 9)
+    assert repeats == [0] + [lean[n] - 1 for n in (1, 2, 3, 4, 6)]
+    enc = PacketEncoder(header(), 2)
+    pack = Datagrams(enc.header()[0], copies=0, header_every=0, eager=4, key_interval=KEY)
+    pack.add(enc.header())
+    pack.joined = True  # the receiver reported: it holds the header
+    assert all(d != enc.header()[0] for x in tracks[:KEY * 4] for d in pack.add(enc.frame(x, True)))
+
+
 def test_a_small_header_goes_again_more_often_than_a_large_one():
     """By default the repeats cost at most 80 bits a keyframe (REPEAT_BITS): a header of 56 bytes (fd-send's
     default layout) every 6th keyframe, one of a kilobyte or more every HEADER_EVERY-th."""
