@@ -57,8 +57,10 @@ MOUTH = 3.0
 #: The video's larger side, as a share of the picture's, by the layer's bit/s per 256x256 pixels:
 #: 128 pixels beat 64 at 4 and 10 kbit/s on three dev clips, on PSNR, SSIM and VMAF (pcavs_Pose_Source
 #: at 10: 28.5 dB and VMAF 34 against 27.3 and 18), and 256 beat 128 at 30 on two of three
-#: (docs/picture_layer.md).
-SIDES = ((20_000, 0.5), (float("inf"), 1.0))
+#: (docs/picture_layer.md). At 1920x1080 and 60 kbit/s (1,860 per 256x256) a quarter (480x270)
+#: beat a half on a moving clip, 26.81 dB against 26.35, and lost 0.14 dB on a still one, with the
+#: sender 1.6-1.7 times as fast (docs/hd.md).
+SIDES = ((2_048, 0.25), (20_000, 0.5), (float("inf"), 1.0))
 #: Over datagrams, seconds between keys: a receiver that lost a packet or joined late draws the
 #: layer again from the next one. Byte streams (files, pipes, TCP) lose nothing and start at the
 #: beginning, so they send one key only.
@@ -82,6 +84,13 @@ def layer_rate(bitrate: float) -> float:
     """bit/s the layer plans on at ``bitrate`` for the whole stream (the parameters take at most
     their floor's worth at the start; what they leave unused goes to the layer as the call goes)."""
     return bitrate - min(parameter_rate(bitrate), PARAMETER_FLOOR)
+
+
+def layer_video_size(bitrate: float, picture_size: tuple[int, int]) -> tuple[int, int]:
+    """(w, h) of the layer's video at ``bitrate`` for the whole stream, for a picture of ``picture_size`` (SIDES)."""
+    width, height = picture_size
+    share = next(s for most, s in SIDES if layer_rate(bitrate) * 256 ** 2 / (width * height) < most)
+    return video_size(picture_size, max(width, height) * share)
 
 
 def choice_shrink(picture_size: tuple[int, int], video: tuple[int, int]) -> int:
@@ -125,8 +134,7 @@ class PictureLayer:
         self._frame_bits = bitrate / header.fps
         self._sealed = sealed
         layer = layer_rate(bitrate)
-        share = next(s for most, s in SIDES if layer * 256 ** 2 / (width * height) < most)
-        self._video_size = video_size(self.size, max(width, height) * share)
+        self._video_size = layer_video_size(bitrate, self.size)
         self._shrink = shrink = choice_shrink(self.size, self._video_size)
         self._look = self._view if shrink == 1 else PictureView(header, face, (width // shrink, height // shrink))
         #: (frame, parameters) the whole view has not placed yet, placed when :attr:`picture` is read: what

@@ -13,6 +13,7 @@ from facedeform.protocol.stream import DatagramDecoder, Frame, Picture, StreamDe
 from facedeform.receiver.face_view import PictureView
 from facedeform.sender import picture_layer
 from facedeform.sender.config import SendConfig
+from facedeform.sender.picture_layer import layer_video_size
 from facedeform.sender.session import SendSession
 from tests.support import CLIP
 
@@ -56,6 +57,15 @@ def call(face):
                 sent = total
     assert session.stats()["picture_packets"] > 0
     return chunks, pictures, np.array(bits), lists
+
+
+def test_the_video_is_as_large_as_its_bits_pay_for():
+    """A half of the picture's side at 256x256 and 4 kbit/s and at 720p and 60; the whole at 256x256 and
+    30; a quarter at 1080p and 60, whose half would get too few bits a pixel (SIDES)."""
+    assert layer_video_size(4_000, (256, 256)) == (128, 128)
+    assert layer_video_size(30_000, (256, 256)) == (256, 256)
+    assert layer_video_size(60_000, (1280, 720)) == (640, 360)
+    assert layer_video_size(60_000, (1920, 1080)) == (480, 270)
 
 
 def test_the_receiver_draws_what_the_sender_reconstructed_bit_for_bit(face, call):
