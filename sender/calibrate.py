@@ -16,6 +16,7 @@ from facedeform.codec.model.face_model import BaseFace
 from facedeform.codec.render.eyelids import CORNERS, LIDS
 from facedeform.codec.render.mouth_interior import LOWER_LIP, UPPER_LIP
 from facedeform.common.errors import InputError
+from facedeform.sender.fit import BLINK_GAP
 
 MOUTH_CORNERS = (61, 291)
 SUBNASALE = 2
@@ -67,14 +68,18 @@ def choose_rest(candidates: list[tuple[int, np.ndarray, np.ndarray]], neutral: i
     """Index of the rest frame among (frame index, (468, 3) landmarks in pixels, (468, 3) aligned).
 
     With ``neutral`` that frame (it must hold a face); otherwise the one with the
-    mouth most closed, which for speech is the nearest a clip comes to a rest face.
+    mouth most closed, which for speech is the nearest a clip comes to a rest face, of those whose
+    eyes are open (not under BLINK_GAP of the most open): lids measured from a blink would draw every
+    open eye of the call wider than it is.
     """
     if neutral is not None:
         for index, _, _ in candidates:
             if index == neutral:
                 return index
         raise InputError(f"--neutral {neutral}: no face tracked in that frame")
-    return min(candidates, key=lambda c: lip_gap(c[1]))[0]
+    openings = [float(eye_opening(landmarks)) for _, landmarks, _ in candidates]
+    open_eyes = [c for c, opening in zip(candidates, openings) if opening >= BLINK_GAP * max(openings)]
+    return min(open_eyes, key=lambda c: lip_gap(c[1]))[0]
 
 
 def inter_ocular(landmarks: np.ndarray) -> np.ndarray:

@@ -70,7 +70,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="with --face, send only the model's id: the receiver holds the file (fd-recv --face)")
     p.add_argument("--neutral", type=number(*LIMITS["neutral"], kind=int), metavar="FRAME",
                    help="frame index (from 0) of the person's rest face; default: the frame of the "
-                        "first second with the mouth most closed")
+                        "first second with the mouth most closed, its eyes open")
     p.add_argument("--smoothing", type=number(*LIMITS["smoothing"]), default=default("smoothing"), metavar="S",
                    help="temporal smoothing strength: 0 off, 1 (default), 2 twice as strong "
                         f"(steadier and cheaper, slower to follow), at most {LIMITS['smoothing'][1]:g}")

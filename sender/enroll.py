@@ -27,7 +27,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     pick.add_argument("--frame", type=int, metavar="N", help="use frame N (from 0), which must show the face")
     pick.add_argument("--auto", action="store_true",
                       help="choose the frame (default): of the first seconds with a face, the one with the "
-                           "mouth most closed and the head nearest to frontal")
+                           "mouth most closed and the head nearest to frontal, its eyes open")
     p.add_argument("--seconds", type=number(0.04, 3600), default=2.0, metavar="S",
                    help="how much of the clip --auto chooses from, counted from the first face (default 2)")
     p.add_argument("--texture-size", type=int, default=TEXTURE_SIZE, metavar="PX",

@@ -26,7 +26,8 @@ from facedeform.codec.model.head_pose import image_to_face_axes
 from facedeform.codec.model.motion_basis import OVER
 from facedeform.common.errors import InputError, NoFaceError
 from facedeform.common.parameters import MAX_COMPONENTS
-from facedeform.sender.calibrate import lip_gap
+from facedeform.sender.calibrate import eye_opening, lip_gap
+from facedeform.sender.fit import BLINK_GAP
 from facedeform.sender.motion import learn_motion, residuals
 from facedeform.sender.motion_global import RingWeights
 from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose
@@ -37,6 +38,7 @@ TEXTURE_SIZE = 256  # texels a side: about 20 KB as JPEG, detail for a 512-pixel
 #: A frame's distance from neutral: lip gap (over eye distance) in units of GAP_UNIT plus head
 #: turn in units of ANGLE_UNIT, so a 0.05 gap (lips visibly parted) weighs as 10 degrees of turn.
 GAP_UNIT, ANGLE_UNIT = 0.05, 10.0
+NEUTRAL_KEPT = 5  # the most neutral frames kept while the window passes (a blink lasts a few frames)
 #: On the dev clips each pattern up to 12 (the most their halves can teach) lowers the error at a given rate.
 MOTION_PATTERNS = 12
 #: The open mouth kept for the receiver: the enrolment window's widest lip gap (over eye distance)
@@ -131,13 +133,16 @@ class FirstSeconds:
 
 def first_seconds(source, base: BaseFace, wanted: int | None, seconds: float) -> FirstSeconds:
     """One pass over the first ``seconds`` after the face appears (and on to frame ``wanted``):
-    the neutral frame (``wanted``, else the most neutral) and the frame with the mouth most open
+    the neutral frame (``wanted``, else the most neutral whose eyes are open: not under BLINK_GAP of
+    the most open in the window, since a reference picture of shut eyes draws every frame of the call
+    with them half shut; of the NEUTRAL_KEPT most neutral) and the frame with the mouth most open
     past OPEN_GAP with the head turned under MOUTH_TURN degrees."""
     from facedeform.sender.tracker import FaceTracker
 
     tracker, stable = FaceTracker(), list(STABLE_LANDMARKS)
     window = max(1, round(seconds * source.fps))
-    best, best_cost, mouth, mouth_gap, seen, count = None, 0.0, None, OPEN_GAP, 0, 0
+    kept: list[tuple[float, int, float, FirstSeconds]] = []  # (cost, index, eyes' opening, frame), cheapest first
+    mouth, mouth_gap, seen, count, most_open = None, OPEN_GAP, 0, 0, 0.0
     for count, frame in enumerate(source.frames(), 1):
         index = count - 1
         landmarks = tracker.track(frame)
@@ -149,17 +154,22 @@ def first_seconds(source, base: BaseFace, wanted: int | None, seconds: float) ->
             seen += in_window
             if in_window and gap > mouth_gap and turn < MOUTH_TURN:
                 mouth, mouth_gap = (cv2.cvtColor(frame, cv2.COLOR_BGR2RGB), landmarks), gap
+            opening = float(eye_opening(landmarks))
+            most_open = max(most_open, opening)
             cost = gap / GAP_UNIT + turn / ANGLE_UNIT
-            if index == wanted or (wanted is None and (best is None or cost < best_cost)):
-                best, best_cost = FirstSeconds(index, frame, landmarks, pose.apply(points), (gap, turn), None), cost
+            if index == wanted or wanted is None:
+                here = FirstSeconds(index, frame, landmarks, pose.apply(points), (gap, turn), None)
+                kept = sorted(kept + [(cost, index, opening, here)], key=lambda k: k[:2])[:NEUTRAL_KEPT]
         elif index == wanted:
             raise NoFaceError(f"{_name(source)}: no face in frame {wanted}")
         if seen >= window and (wanted is None or index >= wanted):
             break
     if wanted is not None and count <= wanted:
         raise InputError(f"frame {wanted}: the clip has only {count} frames")
-    if best is None:
+    if not kept:
         raise NoFaceError(f"{_name(source)}: no face found in any frame")
+    open_eyes = [k for k in kept if wanted is not None or k[2] >= BLINK_GAP * most_open]
+    best = (open_eyes or kept)[0][3]
     best.mouth = mouth
     return best
 

@@ -71,6 +71,41 @@ def test_auto_choice_is_a_closed_mouth_frame(tmp_path, capsys):
     assert gap < 0.05, err
 
 
+def test_the_neutral_frame_is_not_a_blink_even_where_its_mouth_is_the_most_closed(monkeypatch):
+    """A reference picture of shut eyes would draw every frame of the call with them half shut."""
+    from facedeform.codec.render.eyelids import LIDS
+    from facedeform.sender import enrolment, tracker
+    from facedeform.sender.calibrate import LOWER_LIP
+
+    base = load_base_face()
+    pixels = (base.vertices * [200.0, -200.0, 200.0] + [128.0, 128.0, 0.0]).astype(np.float32)
+    faces = []
+    for apart, shut in ((0.5, True), (2.0, False), (1.5, False), (3.0, False)):  # the blink's lips the most closed
+        face = pixels.copy()
+        face[LOWER_LIP, 1] += apart
+        for upper, lower in LIDS if shut else ():
+            face[upper] = face[lower]
+        faces.append(face)
+
+    class Tracked:
+        def __init__(self) -> None:
+            self._seen = iter(faces)
+
+        def track(self, frame):
+            return next(self._seen)
+
+    class Clip:
+        fps = 4.0
+        path = "clip"
+
+        def frames(self):
+            return (np.zeros((256, 256, 3), np.uint8) for _ in faces)
+
+    monkeypatch.setattr(tracker, "FaceTracker", Tracked)
+    assert enrolment.first_seconds(Clip(), base, None, 1.0).index == 2  # the most closed of the open-eyed
+    assert enrolment.first_seconds(Clip(), base, 0, 1.0).index == 0  # asked for, it is taken
+
+
 def test_missing_file(tmp_path, capsys):
     code = main([str(tmp_path / "none.mp4"), "-o", str(tmp_path / "x.fdface")])
     assert "no such file" in one_line_error(capsys, code)

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.render.eyelids import LIDS
 from facedeform.protocol.stream import DatagramDecoder, Frame, StreamDecoder
+from facedeform.sender.calibrate import LOWER_LIP, choose_rest, eye_opening, lip_gap
 from tests.support import CLIP, SEND, assert_one_line_error, run
 
 FRAMES = 30
@@ -58,6 +60,21 @@ def test_default_rest_face_is_in_the_first_second():
     result = run(SEND + [str(CLIP), "--json", "-o", "/dev/null"])
     assert result.returncode == 0
     assert 0 <= json.loads(result.stderr)["rest_frame"] < 25
+
+
+def test_the_rest_frame_is_not_a_blink_even_where_its_mouth_is_the_most_closed():
+    """Lids measured from shut eyes would draw every open eye of the call wider than it is."""
+    face = load_base_face()
+    pixels = face.vertices * [200.0, -200.0, 200.0] + [128.0, 128.0, 0.0]
+    talking, blinking = pixels.copy(), pixels.copy()
+    talking[LOWER_LIP, 1] += 4.0  # lips a little apart
+    blinking[LOWER_LIP, 1] += 1.0  # lips nearer together, but the eyes shut
+    for upper, lower in LIDS:
+        blinking[upper] = blinking[lower]
+    candidates = [(3, blinking, blinking), (7, talking, talking)]
+    assert lip_gap(blinking) < lip_gap(talking) and eye_opening(blinking) < 0.1 * eye_opening(talking)
+    assert choose_rest(candidates) == 7
+    assert choose_rest(candidates, neutral=3) == 3  # asked for, it is taken
 
 
 @pytest.mark.parametrize("args, message", [
