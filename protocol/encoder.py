@@ -230,7 +230,7 @@ class Datagrams:
         self._every, self._eager, self._eager_every = header_every, eager, max(1, eager_every)
         self._recent: list[bytes] = []  # frames packets since the last keyframe, the newest last
         self._keys = 0
-        self._last_key = -1  # the place of the last keyframe (the first is place 0 when not counted by places)
+        self._last_key = -1  # the place of the last keyframe (-1: none yet)
         self._key_interval = key_interval
         #: The receiver reported (sender/link.py), so it holds the header: the eager repeats, for a
         #: receiver started a moment after the sender, stop; the later ones stay, for one that restarts.

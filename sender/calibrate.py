@@ -78,8 +78,15 @@ def choose_rest(candidates: list[tuple[int, np.ndarray, np.ndarray]], neutral: i
                 return index
         raise InputError(f"--neutral {neutral}: no face tracked in that frame")
     openings = [float(eye_opening(landmarks)) for _, landmarks, _ in candidates]
-    open_eyes = [c for c, opening in zip(candidates, openings) if opening >= BLINK_GAP * max(openings)]
+    open_eyes = [c for c, opening in zip(candidates, openings) if eyes_open(opening, max(openings))]
     return min(open_eyes, key=lambda c: lip_gap(c[1]))[0]
+
+
+def eyes_open(opening: float, most_open: float) -> bool:
+    """Whether eyes as open as ``opening`` (:func:`eye_opening`) are open, not a blink: not under
+    BLINK_GAP of ``most_open``, the most open they were (the tracker brings a shut eye's lids only
+    about half together)."""
+    return opening >= BLINK_GAP * most_open
 
 
 def inter_ocular(landmarks: np.ndarray) -> np.ndarray:

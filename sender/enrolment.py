@@ -26,8 +26,7 @@ from facedeform.codec.model.head_pose import image_to_face_axes
 from facedeform.codec.model.motion_basis import OVER
 from facedeform.common.errors import InputError, NoFaceError
 from facedeform.common.parameters import MAX_COMPONENTS
-from facedeform.sender.calibrate import eye_opening, lip_gap
-from facedeform.sender.fit import BLINK_GAP
+from facedeform.sender.calibrate import eye_opening, eyes_open, lip_gap
 from facedeform.sender.motion import learn_motion, residuals
 from facedeform.sender.motion_global import RingWeights
 from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose
@@ -133,8 +132,8 @@ class FirstSeconds:
 
 def first_seconds(source, base: BaseFace, wanted: int | None, seconds: float) -> FirstSeconds:
     """One pass over the first ``seconds`` after the face appears (and on to frame ``wanted``):
-    the neutral frame (``wanted``, else the most neutral whose eyes are open: not under BLINK_GAP of
-    the most open in the window, since a reference picture of shut eyes draws every frame of the call
+    the neutral frame (``wanted``, else the most neutral whose eyes are open against the most open in
+    the window, calibrate.eyes_open, since a reference picture of shut eyes draws every frame of the call
     with them half shut; of the NEUTRAL_KEPT most neutral) and the frame with the mouth most open
     past OPEN_GAP with the head turned under MOUTH_TURN degrees."""
     from facedeform.sender.tracker import FaceTracker
@@ -168,8 +167,9 @@ def first_seconds(source, base: BaseFace, wanted: int | None, seconds: float) ->
         raise InputError(f"frame {wanted}: the clip has only {count} frames")
     if not kept:
         raise NoFaceError(f"{_name(source)}: no face found in any frame")
-    open_eyes = [k for k in kept if wanted is not None or k[2] >= BLINK_GAP * most_open]
-    best = (open_eyes or kept)[0][3]
+    if wanted is None:
+        kept = [k for k in kept if eyes_open(k[2], most_open)] or kept
+    best = kept[0][3]
     best.mouth = mouth
     return best
 

@@ -7,7 +7,10 @@ import pytest
 
 from facedeform.codec.face_file.format import Face, face_id
 from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.render.eyelids import LIDS
 from facedeform.codec.render.picture import face_texture
+from facedeform.sender import enrolment, tracker
+from facedeform.sender.calibrate import LOWER_LIP
 from facedeform.sender.enroll import main
 from tests.support import CLIP
 
@@ -73,10 +76,6 @@ def test_auto_choice_is_a_closed_mouth_frame(tmp_path, capsys):
 
 def test_the_neutral_frame_is_not_a_blink_even_where_its_mouth_is_the_most_closed(monkeypatch):
     """A reference picture of shut eyes would draw every frame of the call with them half shut."""
-    from facedeform.codec.render.eyelids import LIDS
-    from facedeform.sender import enrolment, tracker
-    from facedeform.sender.calibrate import LOWER_LIP
-
     base = load_base_face()
     pixels = (base.vertices * [200.0, -200.0, 200.0] + [128.0, 128.0, 0.0]).astype(np.float32)
     faces = []
