@@ -104,7 +104,9 @@ def _picture_note(picture) -> str:
     height, width = picture.image.shape[:2]
     mouth = "no open mouth" if picture.mouth is None else \
         f"open mouth {len(encode_picture(picture.mouth))} bytes"
-    return f", reference picture {width}x{height} ({len(encode_picture(picture.image))} bytes, {mouth})"
+    eyes = "no blink seen" if picture.shut_eyes is None else \
+        f"shut eyes {len(encode_picture(picture.shut_eyes))} bytes"
+    return f", reference picture {width}x{height} ({len(encode_picture(picture.image))} bytes, {mouth}, {eyes})"
 
 
 if __name__ == "__main__":

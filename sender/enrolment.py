@@ -6,7 +6,8 @@ the face sits in it, and their widest open mouth beside it: the receiver then
 draws the whole picture, warped by the moving face (codec/render/picture.py). When the
 clip shows them talking, the model also carries their own motion basis
 (sender/motion.py) and how far the hair and shoulders around the face follow
-the head (sender/motion_global.RingWeights).
+the head (sender/motion_global.RingWeights), and where the clip shows a blink, the person's own
+shut eyes (:class:`ShutEyes`).
 
 The clip is read twice: once over its first seconds to choose the neutral and
 the open-mouth frames, and once more over the motion window, measured against
@@ -14,6 +15,7 @@ the model the first pass made (the model has to exist before motion can be
 measured against it, and holding a minute of frames would cost hundreds of MB).
 """
 
+from collections import deque
 from dataclasses import dataclass, replace
 from itertools import islice
 
@@ -44,6 +46,11 @@ MOTION_PATTERNS = 12
 #: past OPEN_GAP with the head turned under MOUTH_TURN degrees, cropped with MOUTH_MARGIN pixels.
 OPEN_GAP, MOUTH_TURN, MOUTH_MARGIN = 0.08, 15.0, 3
 TEXTURE_SIDES = (64, 1024)
+#: A blink opens again within this many seconds of shutting: how far before and after a frame ShutEyes looks.
+AROUND = 0.5
+#: The landmarks around the eyes that the lids do not move (the eyes' corners, the brows, the nose's
+#: bridge): by them a blink's frame is laid onto the reference picture.
+EYE_FRAME = (33, 133, 362, 263, 70, 63, 105, 66, 107, 336, 296, 334, 293, 300, 6, 168, 197)
 
 
 @dataclass(frozen=True)
@@ -92,9 +99,11 @@ def enroll_face(video, frame: int | None = None, seconds: float = 2.0, motion: i
     else:
         texture = texture_from_frame(rgb, found.landmarks[:, :2], base.uv, base.faces, texture_size)
     first = decode_face(personal_face(found.aligned, texture, base, picture=ref))
-    basis, rings, frames = _learn(video, first, found.index, motion, motion_over, motion_seconds, on_frame)
+    basis, rings, shut, frames = _learn(video, first, found.index, motion, motion_over, motion_seconds, on_frame)
     if rings is not None and ref is not None:
         ref = replace(ref, ring_weights=rings)
+    if ref is not None and shut is not None and (eyes := shut.laid_on(first, found.landmarks)) is not None:
+        ref = replace(ref, shut_eyes=eyes[0], shut_eyes_at=eyes[1])
     face = Face(personal_face(found.aligned, texture, base, basis, ref))
     return Enrolment(face, found.index, found.score[0], found.score[1],
                      0 if basis is None else basis.components, frames)
@@ -128,6 +137,91 @@ class FirstSeconds:
     aligned: np.ndarray
     score: tuple[float, float]
     mouth: tuple[np.ndarray, np.ndarray] | None
+
+
+class ShutEyes:
+    """The enrolment clip's deepest blink, from its frames in order at ``fps``: of the frames whose eyes
+    are shut against the most open they were AROUND seconds before and after (calibrate.eyes_open: a
+    blink closes and opens again, where a look down or a squint stays), with the head turned under
+    MOUTH_TURN degrees (its pose fitted to ``face``), the least open (calibrate.eye_opening). The
+    tracker brings a shut eye's lids only about half together: to 0.68 of the open gap on the bundled clip."""
+
+    def __init__(self, face: BaseFace, fps: float) -> None:
+        self._face, self._stable = face, list(STABLE_LANDMARKS)
+        self._before: deque[float] = deque(maxlen=max(1, round(AROUND * fps)))  # the openings seen before
+        self._pending: list | None = None  # [opening, (RGB frame, landmarks), frames still to see, most open after]
+        self.opening = float("inf")
+        self.frame: tuple[np.ndarray, np.ndarray] | None = None  # (RGB frame, landmarks)
+
+    def see(self, frame_bgr: np.ndarray, landmarks: np.ndarray | None) -> None:
+        """The next frame and its landmarks (None: no face seen)."""
+        opening = float("nan") if landmarks is None else float(eye_opening(landmarks))
+        pending = self._pending
+        if pending is not None:
+            pending[2] -= 1
+            if landmarks is not None:
+                pending[3] = max(pending[3], opening)
+            if not eyes_open(pending[0], pending[3]):  # open again: a blink
+                self.opening, self.frame, self._pending = pending[0], pending[1], None
+            elif pending[2] == 0:
+                self._pending = None
+        if landmarks is None:
+            self._before.append(0.0)
+            return
+        before = max(self._before, default=0.0)
+        deepest = self.opening if self._pending is None else min(self.opening, self._pending[0])
+        if opening < deepest and not eyes_open(opening, before) and self._turn(landmarks) < MOUTH_TURN:
+            self._pending = [opening, (cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB), landmarks), self._before.maxlen, 0.0]
+        self._before.append(opening)
+
+    def _turn(self, landmarks: np.ndarray) -> float:
+        pose = fit_pose(image_to_face_axes(landmarks)[self._stable], self._face.vertices[self._stable])
+        return float(np.linalg.norm(pose.head_rotation_vector()))
+
+    def laid_on(self, face: BaseFace, neutral: np.ndarray) -> tuple[np.ndarray, tuple[int, int]] | None:
+        """(the shut eyes in ``face``'s reference picture's pixels, cut to the eyelids' box; its top-left
+        pixel), or None without a blink. The blink's frame is laid onto the picture triangle by triangle
+        of the mesh, its landmarks onto the face's vertices at rest: where the receiver's mesh shuts the
+        lids it squashes this back into the blink as the frame showed it, the lashes where the lids meet
+        (a similarity over EYE_FRAME alone left them in the eye's middle, which the mesh squashes away).
+        Past the mesh's triangles (the box's margin), the similarity from the landmarks round the eyes
+        to the neutral frame's ``neutral``."""
+        from facedeform.codec.render.eyelids import Eyelids
+        from facedeform.codec.render.picture import SceneMesh
+
+        if self.frame is None or face.picture is None:
+            return None
+        rgb, landmarks = self.frame
+        frame = list(EYE_FRAME)
+        matrix, _ = cv2.estimateAffinePartial2D(np.asarray(landmarks[frame, :2], np.float32),
+                                                np.asarray(neutral[frame, :2], np.float32),
+                                                method=cv2.LMEDS)
+        if matrix is None:
+            return None
+        height, width = face.picture.image.shape[:2]
+        rest = SceneMesh(face, face.picture).rest_pixels
+        x0, y0, x1, y1 = Eyelids(face, rest, (width, height)).box
+        shifted = matrix.copy()
+        shifted[:, 2] -= (x0, y0)
+        out = cv2.warpAffine(rgb, shifted, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        seen = np.asarray(landmarks, dtype=np.float64)[:, :2]
+        for triangle in face.faces:
+            corners = rest[triangle] - (x0, y0)
+            lo, hi = np.floor(corners.min(axis=0)).astype(int), np.ceil(corners.max(axis=0)).astype(int) + 1
+            lo, hi = np.maximum(lo, 0), np.minimum(hi, (x1 - x0, y1 - y0))
+            (ax, ay), (bx, by) = corners[1] - corners[0], corners[2] - corners[0]
+            if np.any(hi <= lo) or abs(ax * by - ay * bx) < 1e-3:
+                continue
+            back = cv2.getAffineTransform(np.asarray(corners - lo, np.float32),  # box pixels -> frame
+                                          np.asarray(seen[triangle], np.float32))
+            size = (int(hi[0] - lo[0]), int(hi[1] - lo[1]))
+            piece = cv2.warpAffine(rgb, back, size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                   borderMode=cv2.BORDER_REPLICATE)
+            inside = np.zeros(size[::-1], np.uint8)
+            cv2.fillConvexPoly(inside, np.round((corners - lo) * 16).astype(np.int32), 1, cv2.LINE_8, 4)
+            region = out[lo[1]:hi[1], lo[0]:hi[0]]
+            region[inside > 0] = piece[inside > 0]
+        return np.ascontiguousarray(out), (x0, y0)
 
 
 def first_seconds(source, base: BaseFace, wanted: int | None, seconds: float) -> FirstSeconds:
@@ -175,35 +269,36 @@ def first_seconds(source, base: BaseFace, wanted: int | None, seconds: float) ->
 
 
 def _learn(video, face: BaseFace, neutral: int, patterns: int, over: str, seconds: float, on_frame):
-    """(the person's MotionBasis or None, their ring weights or None, frames with a face seen), from
-    one pass over the clip's first ``seconds``: the motion basis when ``patterns`` asks for one
-    (sender/motion.py), the ring weights when ``face`` has a reference picture
-    (sender/motion_global.RingWeights), each frame tracked once for both."""
+    """(the person's MotionBasis or None, their ring weights and ShutEyes or None, frames with a face
+    seen), from one pass over the clip's first ``seconds``: the motion basis when ``patterns`` asks for
+    one (sender/motion.py), the ring weights (sender/motion_global.RingWeights) and the blinks when
+    ``face`` has a reference picture, each frame tracked once for all."""
     from facedeform.sender.tracker import FaceTracker
 
     rings = None if face.picture is None else RingWeights(face)
     if not patterns and rings is None:
-        return None, None, 0
+        return None, None, None, 0
     source = open_source(str(video))
+    shut = None if rings is None else ShutEyes(face, source.fps)
     limit = max(neutral + 1, round(seconds * source.fps))
     total = min(limit, source.length or limit)
-    tracker = _Watched(FaceTracker(), None if rings is None else rings.add)
+    tracker = _Watched(FaceTracker(), () if rings is None or shut is None else (rings.add, shut.see))
     update = None if on_frame is None else (lambda n: on_frame(n, total))
     residual, vertices = residuals(islice(source.frames(), limit), tracker, face, source.fps, over, neutral, update)
     motion = learn_motion(residual, vertices, patterns, over) if patterns else None
-    return motion, None if rings is None else rings.weights(), len(residual)
+    return motion, None if rings is None else rings.weights(), shut, len(residual)
 
 
 class _Watched:
-    """A tracker that also hands each frame and its landmarks to ``watch`` (None: nobody)."""
+    """A tracker that also hands each frame and its landmarks to each of ``watchers``."""
 
-    def __init__(self, tracker, watch) -> None:
-        self._tracker, self._watch = tracker, watch
+    def __init__(self, tracker, watchers) -> None:
+        self._tracker, self._watchers = tracker, watchers
 
     def track(self, frame_bgr: np.ndarray) -> np.ndarray | None:
         landmarks = self._tracker.track(frame_bgr)
-        if self._watch is not None:
-            self._watch(frame_bgr, landmarks)
+        for watch in self._watchers:
+            watch(frame_bgr, landmarks)
         return landmarks
 
 

@@ -17,6 +17,13 @@ def face():
 
 
 @pytest.fixture(scope="session")
+def enrolled_3s():
+    """The sample clip's speaker enrolled from 3 s without a motion basis: the window holds his widest
+    open mouth and his blinks (frames 43-44 and 50-53)."""
+    return facedeform.enroll(str(CLIP), seconds=3.0, motion=0).model
+
+
+@pytest.fixture(scope="session")
 def sent(tmp_path_factory):
     """The sample clip sent once at fd-send's defaults: (stream bytes, sender dump)."""
     tmp = tmp_path_factory.mktemp("sent")

@@ -137,3 +137,30 @@ def test_unknown_option(capsys):
     with pytest.raises(SystemExit) as info:
         main([str(CLIP), "-o", "x.fdface", "--bogus"])
     one_line_error(capsys, info.value.code)
+
+
+def test_the_speakers_shut_eyes_come_from_a_blink_not_from_a_look_down():
+    """ShutEyes keeps the least open eyes that open again within half a second (enrolment.AROUND); eyes
+    lowered and kept low (a look down, a squint) are not a blink, however deep."""
+    base = load_base_face()
+    facing = (base.vertices * [200.0, -200.0, -200.0] + [128.0, 128.0, 0.0]).astype(np.float32)
+    turned = (base.vertices * [200.0, -200.0, 200.0] + [128.0, 128.0, 0.0]).astype(np.float32)  # by 40 degrees
+
+    def eyes(open_: float, pixels: np.ndarray) -> np.ndarray:
+        face = pixels.copy()
+        for upper, lower in LIDS:
+            face[upper] = face[lower] + open_ * (face[upper] - face[lower])
+        return face
+
+    def kept(openings, pixels=facing) -> int | None:
+        shut = enrolment.ShutEyes(base, fps=4.0)  # half a second: two frames either side
+        for index, open_ in enumerate(openings):
+            shut.see(np.full((8, 8, 3), index, np.uint8), None if open_ is None else eyes(open_, pixels))
+        return None if shut.frame is None else int(shut.frame[0][0, 0, 0])
+
+    assert kept([1, 1, 0.5, 0.2, 1, 1, 0.1, 1, 1]) == 6  # the deeper of two blinks
+    assert kept([1, 1, 0.8, 0.5, 0.3, 0.2, 0.2, 0.2, 0.2]) is None  # lowered and kept low
+    assert kept([1, 1, 0.6, 0.4, 0.4, 0.4, 0.3, 0.3]) is None
+    assert kept([1, 1, 0.2, 0.9, 1, 0.1, None, None, None]) == 2  # the face lost before the eyes opened
+    assert kept([1, 1, 0.9, 0.85, 0.9, 1]) is None  # a flicker, not a blink
+    assert kept([1, 1, 0.2, 1, 1], turned) is None  # a blink with the head turned: not laid on a frontal face

@@ -2,6 +2,7 @@
 
 from dataclasses import replace
 
+import cv2
 import numpy as np
 
 from facedeform.codec.model.deform import Deformer
@@ -54,3 +55,39 @@ def test_a_view_draws_shut_eyes_when_the_lids_meet():
     open_, closed, again = view.render(np.zeros(2)), view.render(np.ones(2)), view.render(np.zeros(2))
     assert np.any(open_ != closed)
     np.testing.assert_array_equal(open_, again)  # opening again restores the picture exactly
+
+
+def test_the_speakers_own_shut_eyes_replace_the_drawn_skin_where_the_face_file_has_them():
+    face = replace(BASE, picture=a_picture(160, 160))
+    scene = SceneMesh(face, face.picture)
+    x0, y0, x1, y1 = Eyelids(face, scene.rest_pixels, (160, 160)).box
+    own = np.zeros((y1 - y0 + 4, x1 - x0 + 4, 3), np.uint8)
+    own[..., 1] = 222  # a colour the picture nowhere has
+    with_own = replace(face, picture=replace(face.picture, shut_eyes=own, shut_eyes_at=(x0 - 2, y0 - 2)))
+    closed = Eyelids(with_own, scene.rest_pixels, (160, 160)).region(face.picture.image, (1.0, 1.0))
+    middles = (scene.rest_pixels[[159, 386]] + scene.rest_pixels[[145, 374]]) / 2  # between the lids
+    eyes = np.round(middles - [x0, y0]).astype(int)
+    assert all(np.abs(closed[y, x].astype(int) - (0, 222, 0)).max() <= 4 for x, y in eyes)  # the speaker's own
+    half = Eyelids(with_own, scene.rest_pixels, (160, 160)).region(face.picture.image, (0.5, 0.5))
+    assert half[..., 2].min() >= 50  # not before the lids meet (the picture's blue is 50 or more, the own eyes' 0)
+    elsewhere = replace(with_own, picture=replace(with_own.picture, shut_eyes_at=(x0 + 1, y0)))  # short of the box
+    drawn = Eyelids(elsewhere, scene.rest_pixels, (160, 160)).region(face.picture.image, (1.0, 1.0))
+    np.testing.assert_array_equal(drawn, Eyelids(face, scene.rest_pixels, (160, 160)).region(face.picture.image,
+                                                                                            (1.0, 1.0)))
+
+
+def test_enrolment_lays_the_speakers_own_shut_eyes_on_his_open_ones(enrolled_3s):
+    """The sample clip's speaker blinks: his face carries his shut eyes, where the open eyes' dark
+    irises give way to lid skin and the skin around them stays where it was (laid on the same place)."""
+    picture = enrolled_3s.picture
+    assert picture.shut_eyes is not None
+    (x, y), (height, width) = picture.shut_eyes_at, picture.shut_eyes.shape[:2]
+    open_ = picture.image[y:y + height, x:x + width].astype(float).mean(axis=2)
+    change = picture.shut_eyes.astype(float).mean(axis=2) - open_
+    rest = SceneMesh(enrolled_3s, picture).rest_pixels
+    eyes = np.zeros((height, width), np.uint8)
+    for ring in (enrolled_3s.meta["loops"]["eye_left"], enrolled_3s.meta["loops"]["eye_right"]):
+        cv2.fillPoly(eyes, [np.round(rest[ring] - (x, y)).astype(np.int32)], 1)
+    around = cv2.dilate(eyes, np.ones((9, 9), np.uint8)) == 0
+    assert change[eyes > 0].mean() > 6  # lids where the irises were
+    assert np.abs(change[around]).mean() < 8  # the brows and cheeks in their places

@@ -81,7 +81,7 @@ def _corrupt(data: bytes, where: int) -> bytes:
 @pytest.mark.parametrize("mangle, message", [
     (lambda d: b"", "no FDFACE mark"),
     (lambda d: b"GIF89a" + d[6:], "no FDFACE mark"),
-    (lambda d: d[:6] + bytes([9]) + d[7:], "version 9"),
+    (lambda d: d[:6] + bytes([10]) + d[7:], "version 10"),
     (lambda d: d[:-10], "length does not match"),
     (lambda d: _corrupt(d, 20), "unreadable description"),
     (lambda d: d.replace(b"\xff\xd8\xff", b"\0\0\0"), "texture is not"),
@@ -255,6 +255,41 @@ def test_hostile_open_mouth_fields_are_refused_in_one_line(changes, message):
     data = personal_face(neutral, texture, picture=a_picture_with_a_mouth())
     if "mouth_points" in changes:  # in the JSON before version 7
         data = as_version(data, 6)
+    with pytest.raises(InputError, match=message) as info:
+        decode_face(with_info(data, **changes), "me.fdface")
+    assert "\n" not in str(info.value)
+
+
+def a_picture_with_shut_eyes():
+    shut = np.dstack([np.full((12, 30), 90), np.tile(np.arange(30) * 5, (12, 1)), np.full((12, 30), 40)])
+    return replace(a_picture_with_a_mouth(), shut_eyes=shut.astype(np.uint8), shut_eyes_at=(20, 30))
+
+
+def test_the_shut_eyes_round_trip_in_version_9_and_a_face_without_them_stays_version_8():
+    neutral, texture = a_person()
+    person = replace(decode_face(personal_face(neutral, texture)), picture=a_picture_with_shut_eyes())
+    data = encode_face(person, picture_format=".png")
+    face = decode_face(data)
+    assert data[6] == 9 and face.picture.shut_eyes_at == (20, 30)
+    np.testing.assert_array_equal(face.picture.shut_eyes, person.picture.shut_eyes)
+    np.testing.assert_array_equal(face.picture.mouth, person.picture.mouth)
+    without = encode_face(replace(person, picture=replace(person.picture, shut_eyes=None, shut_eyes_at=None)))
+    assert without[6] == 8 and decode_face(without).picture.shut_eyes is None
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"shut_eyes": [10, 30, 12, 80, 30]}, r"shut eyes of 30x12 pixels at \(80, 30\)"),  # past the picture's edge
+    ({"shut_eyes": [10, 30, 12, -1, 30]}, "shut eyes of 30x12"),
+    ({"shut_eyes": [10, 0, 12, 20, 30]}, "shut eyes of 0x12"),
+    ({"shut_eyes": [10, 30, 13, 20, 30]}, "shut eyes is not a 30x13"),  # not the image's own size
+    ({"shut_eyes": [-5, 30, 12, 20, 30]}, "shut eyes of 30x12"),
+])
+def test_hostile_shut_eyes_are_refused_in_one_line(changes, message):
+    neutral, texture = a_person()
+    person = replace(decode_face(personal_face(neutral, texture)), picture=a_picture_with_shut_eyes())
+    data = encode_face(person, picture_format=".png")
+    size = json.loads(data[12:12 + int.from_bytes(data[8:12], "little")])["shut_eyes"][0]
+    changes["shut_eyes"][0] = changes["shut_eyes"][0] if changes["shut_eyes"][0] < 0 else size
     with pytest.raises(InputError, match=message) as info:
         decode_face(with_info(data, **changes), "me.fdface")
     assert "\n" not in str(info.value)

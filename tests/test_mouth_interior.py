@@ -3,19 +3,16 @@
 import numpy as np
 import pytest
 
-import facedeform
 from facedeform.codec.model.face_model import mouth_vertices
 from facedeform.codec.render.mouth_interior import MouthInterior
 from facedeform.receiver.face_view import PictureView
 from facedeform.sender.session import stream_header
-from tests.support import CLIP
 
 
 @pytest.fixture(scope="module")
-def person():
-    face = facedeform.enroll(str(CLIP), seconds=3.0, motion=0).model
-    assert face.picture.mouth is not None
-    return face
+def person(enrolled_3s):
+    assert enrolled_3s.picture.mouth is not None
+    return enrolled_3s
 
 
 def interior_of(face) -> MouthInterior:

@@ -49,6 +49,9 @@ their difference from the mean of its mesh neighbours stored before it (``_store
 clips' faces of 16 patterns the basis takes about 7 KB instead of 22; a vertex is off by at most
 half a step, 1/2048 of the face's height at the largest coefficient the enrolment clip gave its
 pattern.
+Version 9 adds the person's shut eyes (``shut_eyes`` [bytes, width, height, x, y]: an image, as
+the picture, after the open mouth, and where its top-left pixel lies in the reference picture:
+codec/render/eyelids.py); a face without them is written as version 8, byte for byte as before.
 The face
 id is the sha256 of the whole file (``sha256sum face.fdface`` prints it): what
 the stream header names is exactly what the receiver holds, bit for bit.
@@ -94,8 +97,9 @@ from facedeform.common.limits import MAX_SIDE
 from facedeform.common.parameters import MAX_COMPONENTS
 
 MAGIC = b"FDFACE"
-VERSION = 8
-READS = (1, 2, 3, 4, 5, 6, 7, 8)
+VERSION = 8  # what a face is written as, unless it has shut eyes (SHUT_EYES_VERSION)
+SHUT_EYES_VERSION = 9
+READS = (1, 2, 3, 4, 5, 6, 7, 8, 9)
 #: Version 6's vertex coordinates: steps of the face's height, from the generic face's.
 VERTEX_STEPS = 8192
 #: Version 5-7's pattern coordinates: this many steps for 1.
@@ -150,6 +154,11 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
             info["mouth_points"] = len(points)
             numbers.append(points.tobytes())
             picture += data
+        if face.picture.shut_eyes is not None and face.picture.shut_eyes_at is not None:
+            shut = face.picture.shut_eyes
+            data = encode_picture(shut, picture_format, picture_quality)
+            info["shut_eyes"] = [len(data), shut.shape[1], shut.shape[0], *map(int, face.picture.shut_eyes_at)]
+            picture += data
     motion = b""
     if face.motion is not None:
         info["motion"] = [len(face.motion.vertices), face.motion.components, face.motion.over]
@@ -172,7 +181,8 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
     packed = lzma.compress(b"".join(arrays) + motion + b"".join(numbers), lzma.FORMAT_RAW, filters=_PACKING)
     info["packed"] = len(packed)
     text = json.dumps(info, sort_keys=True, separators=(",", ":")).encode()
-    return b"".join([_PREFIX.pack(MAGIC, VERSION, 0, len(text)), text, packed, texture, picture])
+    version = SHUT_EYES_VERSION if "shut_eyes" in info else VERSION
+    return b"".join([_PREFIX.pack(MAGIC, version, 0, len(text)), text, packed, texture, picture])
 
 
 def encode_picture(rgb: np.ndarray, ext: str = PICTURE_FORMAT, quality: int = PICTURE_QUALITY) -> bytes:
@@ -231,6 +241,8 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
         k, c = int(k), int(c)
         n_pic, pic_w, pic_h = (int(x) for x in info.get("picture", (0, 0, 0)))
         n_mouth, mouth_w, mouth_h = (int(x) for x in info.get("mouth", (0, 0, 0)))
+        n_shut, shut_w, shut_h, shut_x, shut_y = (int(x) for x in info.get("shut_eyes", (0,) * 5)) \
+            if version >= SHUT_EYES_VERSION else (0,) * 5
         if version >= 7:  # counts here, the numbers packed
             n_rings, n_points = int(info.get("rings", 0)), int(info.get("mouth_points", 0))
         else:
@@ -254,6 +266,9 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
         raise bad(f"reference picture of {pic_w}x{pic_h} pixels")
     if n_mouth < 0 or (n_mouth and not (n_pic and all(0 < x <= s for x, s in ((mouth_w, pic_w), (mouth_h, pic_h))))):
         raise bad(f"open mouth of {mouth_w}x{mouth_h} pixels")
+    if n_shut < 0 or (n_shut and not (n_pic and 0 < shut_w and 0 < shut_h and 0 <= shut_x and 0 <= shut_y
+                                      and shut_x + shut_w <= pic_w and shut_y + shut_h <= pic_h)):
+        raise bad(f"shut eyes of {shut_w}x{shut_h} pixels at ({shut_x}, {shut_y})")
     if version >= 7 and not (0 <= n_rings <= MAX_RINGS and 0 <= n_points <= N_LANDMARKS
                              and (n_pic or not n_rings) and (n_mouth or not n_points)):
         raise bad(f"{n_rings} ring weights, {n_points} open mouth points")
@@ -261,7 +276,7 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
     widths = ((6 if version >= 6 else 12) * n, 0 if uv_base else 8 * n, 0 if topology_base else 6 * m)
     n_raw = sum(widths) + n_motion + n_numbers
     n_stored = n_packed if version >= 6 else n_raw
-    if n_stored < 0 or len(data) != pos + n_stored + n_tex + n_pic + n_mouth:
+    if n_stored < 0 or len(data) != pos + n_stored + n_tex + n_pic + n_mouth + n_shut:
         raise bad("its length does not match its description")
     raw = _unpacked(data[pos:pos + n_stored], n_raw, bad) if version >= 6 else data[pos:pos + n_raw]
     if version >= 6:
@@ -280,7 +295,7 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
         projection = np.frombuffer(raw, "<f8", 12, at).reshape(3, 4).copy()
         rings = np.frombuffer(raw, "u1", n_rings, at + 96).astype(np.int64) if "rings" in info else None
         mouth_points = np.frombuffer(raw, "<f4", 2 * n_points, at + 96 + n_rings).reshape(-1, 2).astype(np.float64)
-    end = len(data) - n_pic - n_mouth
+    end = len(data) - n_pic - n_mouth - n_shut
     texture = _decode_texture(data[end - n_tex:end], bad) if n_tex else None
     face = build_face(vertices, faces, uv, meta, face_id(data), texture, origin, motion)
     if not n_pic:
@@ -288,9 +303,13 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
     picture = _decode_picture(data[end:end + n_pic], (pic_w, pic_h), projection, bad)
     if rings is not None:
         picture = replace(picture, ring_weights=_ring_weights(rings, faces, bad))
+    at = end + n_pic
     if n_mouth:
-        picture = replace(picture, mouth=_decode_image(data[end + n_pic:], (mouth_w, mouth_h), "open mouth", bad),
+        picture = replace(picture, mouth=_decode_image(data[at:at + n_mouth], (mouth_w, mouth_h), "open mouth", bad),
                           mouth_points=_mouth_points(mouth_points, face, (mouth_w, mouth_h), bad))
+    if n_shut:
+        picture = replace(picture, shut_eyes=_decode_image(data[at + n_mouth:], (shut_w, shut_h), "shut eyes", bad),
+                          shut_eyes_at=(shut_x, shut_y))
     return replace(face, picture=picture)
 
 

@@ -69,13 +69,17 @@ class ReferencePicture:
     (h, w, 3) uint8 RGB or None: their open mouth, from another frame, and mouth_points (k, 2)
     float64: where the vertices of the mouth opening (``mouth_vertices``) are in it, in pixels;
     ring_weights (rings x boundary,) float64 in 0..1 or None: how far each vertex of the receiver's
-    rings around the face follows the head (codec/render/picture.SceneMesh), as enrolment measured it."""
+    rings around the face follows the head (codec/render/picture.SceneMesh), as enrolment measured it;
+    shut_eyes (h, w, 3) uint8 RGB or None: the person's eyes shut, from a blink, moved onto this
+    picture's eyes (codec/render/eyelids.py), whose top-left pixel in it is shut_eyes_at (x, y)."""
 
     image: np.ndarray
     projection: np.ndarray
     mouth: np.ndarray | None = None
     mouth_points: np.ndarray | None = None
     ring_weights: np.ndarray | None = None
+    shut_eyes: np.ndarray | None = None
+    shut_eyes_at: tuple[int, int] | None = None
 
 
 def mouth_vertices(face: BaseFace) -> np.ndarray:

@@ -11,7 +11,9 @@ close the texture there crossfades to that skin, from CLOSING to CLOSED of the
 lid gap's closure; the mesh carries it, so a closed eye shows lid skin where
 the eye was. Below CLOSING the lid slides over the eye instead: the eye's lower
 part keeps its own scale where the mesh squashes the opening, so lids lowered
-over eyes that look down cover the irises' tops. The sender sends the lids as
+over eyes that look down cover the irises' tops. Where enrolment saw the speaker blink, the face
+file carries their own shut eyes (sender/enrolment.ShutEyes) and the eye crossfades to them instead
+of the skin below it. The sender sends the lids as
 far closed as they are, not as far as the tracker says (sender/fit.LID_GAIN).
 Both ends compute it from the same picture, so the
 sender's closed loop draws what the receiver draws.
@@ -41,7 +43,8 @@ MARGIN = 8  # pixels around the eyes' bands in the box the lids change: the skin
 
 
 class Eyelids:
-    """For one face and its reference picture's pixels of the face vertices at rest ``pixels`` (n, 2)."""
+    """For one face and its reference picture's pixels of the face vertices at rest ``pixels`` (n, 2);
+    with the picture's ``shut_eyes`` (ReferencePicture), where they cover both eyes' :attr:`box`."""
 
     def __init__(self, face: BaseFace, pixels: np.ndarray, size: tuple[int, int]) -> None:
         rest = np.asarray(face.vertices, dtype=np.float64)
@@ -68,6 +71,7 @@ class Eyelids:
         self._soft = [cv2.GaussianBlur(m, (0, 0), 1.0).astype(np.float32)[..., None] / 255 for m in self._masks]
         self._skin: np.ndarray | None = None  # the box with both eyes filled, for the picture self._of
         self._of: np.ndarray | None = None
+        self._own = _own_shut(face.picture, self.box)  # the speaker's own shut eyes in the box, or None
 
     def weights(self, deformed: np.ndarray) -> tuple[float, ...]:
         """How far each eye (face-right, face-left) is closed, 0 (as at rest or wider) to 1 (shut) in
@@ -98,8 +102,8 @@ class Eyelids:
         weights = [float(np.clip((c - CLOSING) / (CLOSED - CLOSING), 0.0, 1.0)) for c in closures]
         if not any(weights):
             return out
-        skin = self._skin
-        if self._of is not picture or skin is None:
+        skin = self._own if self._own is not None else self._skin
+        if skin is None or (self._own is None and self._of is not picture):
             self._skin = skin = _lid_skin(crop, self._masks)
             for mask, (line, thickness) in zip(self._masks, self._lashes):
                 dark = np.percentile(crop[mask > 0], 10, axis=0)  # the lashes' colour
@@ -129,6 +133,18 @@ class _Opening:
         moved = cv2.remap(picture, self._cols, source_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         region = out[self._y0:self._y1, self._x0:self._x1]
         region[self._inside] = moved[self._inside]
+
+
+def _own_shut(picture, box: tuple[int, int, int, int]) -> np.ndarray | None:
+    """``picture``'s shut eyes (ReferencePicture.shut_eyes) cut to ``box``, or None where it has none
+    or they do not cover it (a face file written for another picture)."""
+    if picture is None or picture.shut_eyes is None or picture.shut_eyes_at is None:
+        return None
+    (x, y), (x0, y0, x1, y1) = picture.shut_eyes_at, box
+    height, width = picture.shut_eyes.shape[:2]
+    if not (x <= x0 and y <= y0 and x1 <= x + width and y1 <= y + height):
+        return None
+    return np.ascontiguousarray(picture.shut_eyes[y0 - y:y1 - y, x0 - x:x1 - x])
 
 
 def _lid_skin(picture: np.ndarray, masks: list[np.ndarray]) -> np.ndarray:
