@@ -11,7 +11,17 @@ follow (the next packet) cannot change what it decodes.
 
 Everything is integer arithmetic: both ends compute identical probabilities on
 any machine.
+
+A long run of bits under one model (the picture layer's block choices, about
+2,000 a frame at 1920x1080) has compiled twins, :func:`encode_run` and
+:func:`decode_run`, that keep the interval in a 32-bit window with the bytes
+above it written out (a carry ripples into them) and give the same bytes and
+bits as the coder above: in Python a 1080p frame's choices took 1.4 ms to code
+and 1.7 to decode.
 """
+
+import numpy as np
+from numba import njit
 
 PROB_BITS = 16
 _ONE = 1 << PROB_BITS
@@ -144,3 +154,103 @@ class Decoder:
     def end(self) -> bytes:
         """What :meth:`Encoder.end` returned for the bits decoded so far: the code's own bytes."""
         return _self_delimiting_end(self._low, self._low + self._range, self._shift)
+
+
+def encode_run(bits: np.ndarray, model: AdaptiveBit) -> bytes:
+    """The bytes of :class:`Encoder` coding each of ``bits`` (0 or 1) with ``model`` (updated as
+    it would be), then :meth:`Encoder.end`."""
+    bits = np.ascontiguousarray(bits, dtype=np.uint8)
+    out = np.zeros(3 * bits.size + 8, np.uint8)  # a bit's split keeps at least 2**-16 of the range: 3 bytes
+    written, low, span, shift, n0, n1 = _encode(bits, model.n0, model.n1, out)
+    model.n0, model.n1 = int(n0), int(n1)
+    start = int.from_bytes(out[:written].tobytes(), "big") << 32 | low
+    return _self_delimiting_end(start, start + span, shift)
+
+
+def decode_run(data: bytes, count: int, model: AdaptiveBit) -> tuple[np.ndarray, int] | None:
+    """(``count`` bits as :class:`Decoder` reads them with ``model``, updated as it would be; the
+    bytes the code took, :meth:`Decoder.end`) from the start of ``data``; None if it ends too soon.
+    The compiled run reads past the end of ``data`` as zeros; where the bytes the code took do not
+    settle every bit by themselves (a code cut short, or not one), the exact decoder decides."""
+    n0, n1 = model.n0, model.n1
+    bits = np.empty(count, np.uint8)
+    read, code, span, shift, after0, after1 = _decode(np.frombuffer(data, np.uint8), count, n0, n1, bits)
+    low = (int.from_bytes(data[:read], "big") << 8 * (read - min(read, len(data)))) - code
+    end = _self_delimiting_end(low, low + span, shift)
+    at = int.from_bytes(data[:len(end)], "big") << (shift - 8 * len(end))
+    if len(end) <= len(data) and low <= at and at + (1 << (shift - 8 * len(end))) <= low + span:
+        model.n0, model.n1 = int(after0), int(after1)
+        return bits, len(end)
+    decoder = Decoder(data)
+    try:
+        exact = np.array([decoder.bit(model) for _ in range(count)], dtype=np.uint8)
+        return exact, len(decoder.end())
+    except Incomplete:
+        return None
+
+
+@njit(cache=True)
+def _counted(bit, n0, n1):  # pragma: no cover - compiled
+    """AdaptiveBit.update's counts."""
+    if bit:
+        n1 += 1
+    else:
+        n0 += 1
+    if n0 + n1 > _COUNT_LIMIT:
+        n0, n1 = (n0 + 1) >> 1, (n1 + 1) >> 1
+    return n0, n1
+
+
+@njit(cache=True)
+def _encode(bits, n0, n1, out):  # pragma: no cover - compiled
+    """Encoder.bit over ``bits`` from an empty Encoder: the interval's start is the bytes written to
+    ``out`` then ``low`` (under 2**32), as (bytes written, low, range, shift, n0, n1)."""
+    low, span, shift, written = np.int64(0), np.int64(1) << 32, 32, 0
+    for bit in bits:
+        split = (span * (((2 * n0 + 1) << PROB_BITS) // (2 * (n0 + n1) + 2))) >> PROB_BITS
+        if bit:
+            low += split
+            span -= split
+        else:
+            span = split
+        n0, n1 = _counted(bit, n0, n1)
+        if low >> 32:  # a carry into the bytes written: the interval never passes the code's end
+            low -= np.int64(1) << 32
+            i = written - 1
+            while out[i] == 255:
+                out[i] = 0
+                i -= 1
+            out[i] += 1
+        while span < _MIN_RANGE:
+            out[written] = low >> 24
+            written += 1
+            low = (low & 0xFFFFFF) << 8
+            span <<= 8
+            shift += 8
+    return written, low, span, shift, n0, n1
+
+
+@njit(cache=True)
+def _decode(data, count, n0, n1, bits):  # pragma: no cover - compiled
+    """Decoder.bit ``count`` times into ``bits``, the data read as zeros past its end: (bytes read,
+    the read bytes' value less the interval's start, range, shift, n0, n1)."""
+    code, span, shift, read = np.int64(0), np.int64(1) << 32, 32, 0
+    for _ in range(4):
+        code = code << 8 | (data[read] if read < data.size else 0)
+        read += 1
+    for k in range(count):
+        split = (span * (((2 * n0 + 1) << PROB_BITS) // (2 * (n0 + n1) + 2))) >> PROB_BITS
+        bit = code >= split
+        if bit:
+            code -= split
+            span -= split
+        else:
+            span = split
+        bits[k] = bit
+        n0, n1 = _counted(bit, n0, n1)
+        while span < _MIN_RANGE:
+            code = code << 8 | (data[read] if read < data.size else 0)
+            read += 1
+            span <<= 8
+            shift += 8
+    return read, code, span, shift, n0, n1

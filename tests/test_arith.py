@@ -1,10 +1,11 @@
 """The binary arithmetic coder: its self-delimiting code decodes exactly and knows its length."""
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from facedeform.protocol.arith import AdaptiveBit, Decoder, Encoder, Incomplete
+from facedeform.protocol.arith import AdaptiveBit, Decoder, Encoder, Incomplete, decode_run, encode_run
 
 
 def code(bits: list[int], models: list[int], first_byte_below: int = 256) -> Encoder:
@@ -44,3 +45,30 @@ def test_a_self_delimiting_code_cut_short_asks_for_more(pairs):
     for cut in range(len(data)):
         with pytest.raises(Incomplete):
             read(Decoder(data[:cut]), models)
+
+
+RUNS = st.tuples(st.lists(st.integers(0, 1), max_size=600), st.integers(0, 70), st.integers(0, 70))
+
+
+@settings(max_examples=300, deadline=None)
+@given(RUNS, st.binary(max_size=6), st.integers(0, 1000))
+def test_a_compiled_run_codes_and_decodes_as_the_coder_does(run, after, cut):
+    """encode_run and decode_run give the exact coder's bytes, bits, lengths and model counts, also
+    for a code cut short (None where the coder asks for more) or followed by other bytes."""
+    bits, n0, n1 = run
+    enc, model = Encoder(), AdaptiveBit(n0, n1)
+    for bit in bits:
+        enc.bit(bit, model)
+    ran = AdaptiveBit(n0, n1)
+    assert encode_run(np.array(bits, np.uint8), ran) == enc.end() and (ran.n0, ran.n1) == (model.n0, model.n1)
+    for data in (enc.end() + after, (enc.end() + after)[:cut]):
+        dec, exact = Decoder(data), AdaptiveBit(n0, n1)
+        try:
+            want: tuple | None = ([dec.bit(exact) for _ in bits], len(dec.end()))
+        except Incomplete:
+            want = None
+        ran = AdaptiveBit(n0, n1)
+        got = decode_run(data, len(bits), ran)
+        assert (None if got is None else (got[0].tolist(), got[1])) == want
+        if want is not None:
+            assert (ran.n0, ran.n1) == (exact.n0, exact.n1)

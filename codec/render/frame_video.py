@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from facedeform.protocol.arith import AdaptiveBit, Decoder, Encoder, Incomplete
+from facedeform.protocol.arith import AdaptiveBit, decode_run, encode_run
 
 BLOCK = 32  # pixels of the picture per model-or-video choice (16: four to seven times the bits for 0.24 dB)
 #: SVT-AV1's speed preset: in its real-time mode 6 is the slowest (4 gives the same bytes). Against
@@ -147,20 +147,16 @@ def blocks_in(box: tuple[float, float, float, float], picture_size: tuple[int, i
 
 def encode_blocks(before: np.ndarray, after: np.ndarray) -> bytes:
     """The (rows, columns) bool choice ``after`` as changes from ``before``."""
-    coder, model = Encoder(), AdaptiveBit(*_CHANGE)
-    for changed in (before != after).ravel():
-        coder.bit(int(changed), model)
-    return coder.end()
+    return encode_run((before != after).ravel(), AdaptiveBit(*_CHANGE))
 
 
 def decode_blocks(before: np.ndarray, data: bytes) -> tuple[np.ndarray, int] | None:
     """(the choice, bytes it took) from the start of ``data``; None if it ends too soon."""
-    decoder, model = Decoder(data), AdaptiveBit(*_CHANGE)
-    try:
-        changed = np.array([decoder.bit(model) for _ in range(before.size)], dtype=bool)
-        return before ^ changed.reshape(before.shape), len(decoder.end())
-    except Incomplete:
+    decoded = decode_run(data, before.size, AdaptiveBit(*_CHANGE))
+    if decoded is None:
         return None
+    changed, used = decoded
+    return before ^ changed.astype(bool).reshape(before.shape), used
 
 
 #: (the video scaled up to the model's picture, the model's picture at the video's size scaled back,

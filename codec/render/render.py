@@ -307,9 +307,17 @@ def warm_up() -> None:
     Renderer(np.array([[0, 1, 2]]), size=(8, 8), material=UNLIT, lights=(), uv=triangle[:, :2] + 0.5,
              texture=np.zeros((2, 2, 3), np.uint8)).render(triangle, camera)
     # and the picture layer's, which would otherwise stall the first frame a layer packet reaches
-    from facedeform.codec.render.frame_video import blend, blocks_of, choose_blocks, video_parts
+    from facedeform.codec.render.frame_video import (
+        blend,
+        blocks_of,
+        choose_blocks,
+        decode_blocks,
+        encode_blocks,
+        video_parts,
+    )
 
     picture = np.zeros((64, 64, 3), np.uint8)
     parts = video_parts(picture, picture[::2, ::2])
     chosen = np.zeros(blocks_of((64, 64)), bool)
     blend(picture, parts, choose_blocks(picture, parts, picture, chosen), (64, 64))
+    decode_blocks(chosen, encode_blocks(chosen, chosen))
