@@ -22,6 +22,7 @@ from facedeform.codec.render.frame_video import (
     VideoLayer,
     blocks_in,
     choose_blocks,
+    shrunk,
     video_size,
 )
 from facedeform.protocol.stream import Header, PacketEncoder, stream_size
@@ -235,14 +236,3 @@ class PictureLayer:
         self._last_key = seq if key else self._last_key
         return packets
 
-
-def shrunk(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """``image`` scaled down to ``size`` by area averaging; where ``size`` is its size over a multiple
-    of 4, halved first until it is not (OpenCV's halving is its fast way: from 1920x1080, 0.9 ms on
-    one thread to 960x540 and 1.0 to 480x270 by two halvings, 3.0 in one step; the halves round
-    twice, to within a level of the one step's mean)."""
-    while image.shape[1] % (4 * size[0]) == 0 and image.shape[0] % (4 * size[1]) == 0 and \
-            image.shape[1] // size[0] == image.shape[0] // size[1]:
-        image = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
-    same = image.shape[1::-1] == tuple(size)
-    return image if same else cv2.resize(image, size, interpolation=cv2.INTER_AREA)

@@ -1,5 +1,6 @@
 """The picture layer's video and blocks (codec/render/frame_video.py), apart from a call."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -14,6 +15,7 @@ from facedeform.codec.render.frame_video import (
     choose_blocks,
     decode_blocks,
     encode_blocks,
+    shrunk,
     video_parts,
     video_size,
 )
@@ -138,3 +140,13 @@ def test_blocks_in_a_box_and_a_favoured_model():
     parts = video_parts(model, video)
     assert not choose_blocks(model, parts, frame, before).any()
     assert choose_blocks(model, parts, frame, before, favour=np.where(inside, 8.0, 1.0)).sum() == 4
+
+
+def test_a_frame_shrunk_by_halves_is_within_a_level_of_one_step():
+    frame = np.random.default_rng(3).integers(0, 256, (216, 384, 3), dtype=np.uint8)
+    for side in (192, 96, 48, 100):
+        size = (side, round(side * 216 / 384))
+        once = cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
+        got = shrunk(frame, size)
+        assert got.shape == once.shape and np.abs(got.astype(int) - once).max() <= 1
+        assert (got == once).all() == (side in (192, 100))  # a half, or no whole number: one step

@@ -3,7 +3,6 @@
 import tracemalloc
 from contextlib import contextmanager
 
-import cv2
 import numpy as np
 import pytest
 
@@ -14,7 +13,7 @@ from facedeform.protocol.stream import DatagramDecoder, Frame, Picture, StreamDe
 from facedeform.receiver.face_view import PictureView
 from facedeform.sender import picture_layer
 from facedeform.sender.config import SendConfig
-from facedeform.sender.picture_layer import layer_video_size, shrunk
+from facedeform.sender.picture_layer import layer_video_size
 from facedeform.sender.session import SendSession
 from tests.support import CLIP
 
@@ -249,12 +248,3 @@ def test_over_datagrams_a_lost_picture_packet_is_made_good_by_the_next_key(face)
     for seq in range(keys[1], len(pictures)):
         np.testing.assert_array_equal(drawn[seq], pictures[seq])  # in step again from the key
 
-
-def test_a_frame_shrunk_by_halves_is_within_a_level_of_one_step():
-    frame = np.random.default_rng(3).integers(0, 256, (216, 384, 3), dtype=np.uint8)
-    for side in (192, 96, 48, 100):
-        size = (side, round(side * 216 / 384))
-        once = cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
-        got = shrunk(frame, size)
-        assert got.shape == once.shape and np.abs(got.astype(int) - once).max() <= 1
-        assert (got == once).all() == (side in (192, 100))  # a half, or no whole number: one step

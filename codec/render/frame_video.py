@@ -131,6 +131,18 @@ class VideoDecoder:
         return frames[0].to_ndarray(format="rgb24")
 
 
+def shrunk(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """``image`` scaled down to ``size`` by area averaging; where ``size`` is its size over a multiple
+    of 4, halved first until it is not (OpenCV's halving is its fast way: from 1920x1080, 0.9 ms on
+    one thread to 960x540 and 1.0 to 480x270 by two halvings, 3.0-3.8 in one step; the halves round
+    twice, to within a level of the one step's mean)."""
+    while image.shape[1] % (4 * size[0]) == 0 and image.shape[0] % (4 * size[1]) == 0 and \
+            image.shape[1] // size[0] == image.shape[0] // size[1]:
+        image = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
+    same = image.shape[1::-1] == tuple(size)
+    return image if same else cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+
+
 def blocks_of(picture_size: tuple[int, int]) -> tuple[int, int]:
     """(rows, columns) of BLOCK-pixel blocks over a picture of ``picture_size`` (w, h)."""
     w, h = picture_size
@@ -195,9 +207,9 @@ def video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = No
     h, w = model.shape[:2]
     small = video.shape[1::-1]
     up = cv2.resize(video, (w, h), interpolation=cv2.INTER_LINEAR) if up is None else np.ascontiguousarray(up)
-    model_small = cv2.resize(np.ascontiguousarray(model), small, interpolation=cv2.INTER_AREA)
+    model_small = shrunk(np.ascontiguousarray(model), small)
     coarse = cv2.resize(model_small, (w, h), interpolation=cv2.INTER_LINEAR)
-    up_small = cv2.resize(up, small, interpolation=cv2.INTER_AREA)
+    up_small = shrunk(up, small)
     agree = _agreement(cv2.GaussianBlur(_apart(up_small, model_small), (0, 0), 1.0))
     return up, coarse, cv2.resize(agree, (w, h), interpolation=cv2.INTER_LINEAR)
 
