@@ -264,3 +264,9 @@ def a_picture_with_a_mouth():
     mouth = np.full((10, 16, 3), 200, np.uint8)
     points = np.linspace([1.0, 1.0], [15.0, 9.0], len(mouth_vertices(BASE)))
     return replace(a_picture(), mouth=mouth, mouth_points=points)
+
+
+def a_picture_with_shut_eyes():
+    """A picture with an open mouth and shut eyes (face file version 9)."""
+    shut = np.dstack([np.full((12, 30), 90), np.tile(np.arange(30) * 5, (12, 1)), np.full((12, 30), 40)])
+    return replace(a_picture_with_a_mouth(), shut_eyes=shut.astype(np.uint8), shut_eyes_at=(20, 30))

@@ -21,7 +21,15 @@ from facedeform.codec.model.deform import Deformer
 from facedeform.codec.render.picture import Placement
 from facedeform.common.errors import InputError
 from facedeform.common.parameters import PAPER_PARAMS
-from tests.support import BASE, a_person, a_picture, a_picture_with_a_mouth, as_version, with_info
+from tests.support import (
+    BASE,
+    a_person,
+    a_picture,
+    a_picture_with_a_mouth,
+    a_picture_with_shut_eyes,
+    as_version,
+    with_info,
+)
 
 GENERIC_ID = "29d964b2735ca5b817cf688586b0cdcbe7dae01b01573aa45c8ce855b3d3a966"
 
@@ -258,11 +266,6 @@ def test_hostile_open_mouth_fields_are_refused_in_one_line(changes, message):
     with pytest.raises(InputError, match=message) as info:
         decode_face(with_info(data, **changes), "me.fdface")
     assert "\n" not in str(info.value)
-
-
-def a_picture_with_shut_eyes():
-    shut = np.dstack([np.full((12, 30), 90), np.tile(np.arange(30) * 5, (12, 1)), np.full((12, 30), 40)])
-    return replace(a_picture_with_a_mouth(), shut_eyes=shut.astype(np.uint8), shut_eyes_at=(20, 30))
 
 
 def test_the_shut_eyes_round_trip_in_version_9_and_a_face_without_them_stays_version_8():

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from facedeform.codec.face_file.format import decode_face, encode_face, personal_face
 from facedeform.common.errors import FdError
-from tests.support import a_person, a_picture_with_a_mouth, with_info
+from tests.support import a_person, a_picture_with_a_mouth, a_picture_with_shut_eyes, with_info
 
 #: Bytes any one file may make the reader allocate (a valid seed takes about 0.1 MB; a count that claims
 #: 2^31 vertices would take gigabytes). Pixels OpenCV decodes are not traced: image headers bound those.
@@ -25,15 +25,18 @@ MEMORY = 32 << 20
 
 
 def seeds() -> list[bytes]:
-    """Valid files: a textured face, one with a reference picture and an open mouth, the generic-like one."""
+    """Valid files: a textured face, one with a reference picture and an open mouth, one with shut eyes
+    too, the generic-like one."""
     neutral, texture = a_person()
     person = decode_face(personal_face(neutral, texture))
     with_mouth = encode_face(replace(person, picture=a_picture_with_a_mouth()), picture_format=".png")
-    return [personal_face(neutral, texture), with_mouth, personal_face(neutral)]
+    with_eyes = encode_face(replace(person, picture=a_picture_with_shut_eyes()), picture_format=".png")
+    return [personal_face(neutral, texture), with_mouth, with_eyes, personal_face(neutral)]
 
 
 SEEDS = seeds()
-FIELDS = ("vertices", "faces", "texture", "meta", "motion", "picture", "projection", "mouth", "mouth_points", "rings")
+FIELDS = ("vertices", "faces", "texture", "meta", "motion", "picture", "projection", "mouth", "mouth_points", "rings",
+          "shut_eyes")
 WEIRD = st.one_of(
     st.none(), st.booleans(), st.integers(-2**70, 2**70), st.floats(allow_nan=True, allow_infinity=True),
     st.text(max_size=8), st.lists(st.integers(-2**40, 2**40), max_size=5),
@@ -73,9 +76,10 @@ def test_wrong_description_values_give_only_our_error(seed, changes):
 
 
 @pytest.mark.parametrize("field, value", [("texture", float("inf")), ("picture", [float("inf"), 16, 16]),
-                                          ("motion", [float("-inf"), 1, "rest"]), ("mouth", [float("inf"), 1, 1])])
+                                          ("motion", [float("-inf"), 1, "rest"]), ("mouth", [float("inf"), 1, 1]),
+                                          ("shut_eyes", [float("inf"), 30, 12, 20, 30])])
 def test_an_infinite_count_is_our_error(field, value):
-    assert_only_our_errors(with_info(SEEDS[1], **{field: value}))
+    assert_only_our_errors(with_info(SEEDS[2], **{field: value}))
 
 
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
