@@ -42,7 +42,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "parameters in --params personal (default: fewest bits for the fidelity); paper: "
                         "they span what the paper's 13 parameters leave over and are sent after them")
     p.add_argument("--motion-seconds", type=number(0.04, 36000), default=60.0, metavar="S",
-                   help="how much of the clip the motion basis learns from (default 60)")
+                   help="how much of the clip the motion basis, the picture's ring weights and the shut "
+                        "eyes (the deepest blink, eyes open again within half a second) are learned from "
+                        "(default 60)")
     p.add_argument("--no-picture", action="store_true",
                    help="leave out the reference picture (the whole neutral frame, WebP; docs/picture.md): "
                         "the receiver then draws the face alone")
