@@ -160,7 +160,7 @@ def encode_run(bits: np.ndarray, model: AdaptiveBit) -> bytes:
     """The bytes of :class:`Encoder` coding each of ``bits`` (0 or 1) with ``model`` (updated as
     it would be), then :meth:`Encoder.end`."""
     bits = np.ascontiguousarray(bits, dtype=np.uint8)
-    out = np.zeros(3 * bits.size + 8, np.uint8)  # a bit's split keeps at least 2**-16 of the range: 3 bytes
+    out = np.zeros(2 * bits.size + 8, np.uint8)  # a bit keeps at least 2**-16 of the range: 2 bytes out at most
     written, low, span, shift, n0, n1 = _encode(bits, model.n0, model.n1, out)
     model.n0, model.n1 = int(n0), int(n1)
     start = int.from_bytes(out[:written].tobytes(), "big") << 32 | low

@@ -139,6 +139,16 @@ class FirstSeconds:
     mouth: tuple[np.ndarray, np.ndarray] | None
 
 
+@dataclass
+class _Closing:
+    """A frame whose eyes are shut against the frames before it, waiting for them to open again."""
+
+    opening: float
+    frame: tuple[np.ndarray, np.ndarray]  # (RGB frame, landmarks)
+    left: int  # frames still to see
+    after: float = 0.0  # the most open the eyes were since
+
+
 class ShutEyes:
     """The enrolment clip's deepest blink, from its frames in order at ``fps``: of the frames whose eyes
     are shut against the most open they were AROUND seconds before and after (calibrate.eyes_open: a
@@ -148,8 +158,9 @@ class ShutEyes:
 
     def __init__(self, face: BaseFace, fps: float) -> None:
         self._face, self._stable = face, list(STABLE_LANDMARKS)
-        self._before: deque[float] = deque(maxlen=max(1, round(AROUND * fps)))  # the openings seen before
-        self._pending: list | None = None  # [opening, (RGB frame, landmarks), frames still to see, most open after]
+        self._span = max(1, round(AROUND * fps))  # frames
+        self._before: deque[float] = deque(maxlen=self._span)  # the openings seen before
+        self._pending: _Closing | None = None  # a candidate, until its eyes open again or AROUND passes
         self.opening = float("inf")
         self.frame: tuple[np.ndarray, np.ndarray] | None = None  # (RGB frame, landmarks)
 
@@ -158,20 +169,21 @@ class ShutEyes:
         opening = float("nan") if landmarks is None else float(eye_opening(landmarks))
         pending = self._pending
         if pending is not None:
-            pending[2] -= 1
+            pending.left -= 1
             if landmarks is not None:
-                pending[3] = max(pending[3], opening)
-            if not eyes_open(pending[0], pending[3]):  # open again: a blink
-                self.opening, self.frame, self._pending = pending[0], pending[1], None
-            elif pending[2] == 0:
+                pending.after = max(pending.after, opening)
+            if not eyes_open(pending.opening, pending.after):  # open again: a blink
+                self.opening, self.frame, self._pending = pending.opening, pending.frame, None
+            elif pending.left == 0:
                 self._pending = None
         if landmarks is None:
             self._before.append(0.0)
             return
         before = max(self._before, default=0.0)
-        deepest = self.opening if self._pending is None else min(self.opening, self._pending[0])
+        deepest = self.opening if self._pending is None else min(self.opening, self._pending.opening)
         if opening < deepest and not eyes_open(opening, before) and self._turn(landmarks) < MOUTH_TURN:
-            self._pending = [opening, (cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB), landmarks), self._before.maxlen, 0.0]
+            rgb = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)
+            self._pending = _Closing(opening, (rgb, landmarks), self._span)
         self._before.append(opening)
 
     def _turn(self, landmarks: np.ndarray) -> float:
