@@ -31,7 +31,7 @@ from facedeform.common.parameters import MAX_COMPONENTS
 from facedeform.sender.calibrate import eye_opening, eyes_open, lip_gap
 from facedeform.sender.motion import learn_motion, residuals
 from facedeform.sender.motion_global import RingWeights
-from facedeform.sender.pose import STABLE_LANDMARKS, fit_pose
+from facedeform.sender.pose import STABLE_LANDMARKS, Pose, fit_pose
 from facedeform.sender.sources import open_source
 from facedeform.sender.texture import texture_from_frame
 
@@ -157,7 +157,7 @@ class ShutEyes:
     tracker brings a shut eye's lids only about half together: to 0.68 of the open gap on the bundled clip."""
 
     def __init__(self, face: BaseFace, fps: float) -> None:
-        self._face, self._stable = face, list(STABLE_LANDMARKS)
+        self._face = face
         self._span = max(1, round(AROUND * fps))  # frames
         self._before: deque[float] = deque(maxlen=self._span)  # the openings seen before
         self._pending: _Closing | None = None  # a candidate, until its eyes open again or AROUND passes
@@ -181,14 +181,10 @@ class ShutEyes:
             return
         before = max(self._before, default=0.0)
         deepest = self.opening if self._pending is None else min(self.opening, self._pending.opening)
-        if opening < deepest and not eyes_open(opening, before) and self._turn(landmarks) < MOUTH_TURN:
+        if opening < deepest and not eyes_open(opening, before) and _posed(landmarks, self._face)[2] < MOUTH_TURN:
             rgb = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)
             self._pending = _Closing(opening, (rgb, landmarks), self._span)
         self._before.append(opening)
-
-    def _turn(self, landmarks: np.ndarray) -> float:
-        pose = fit_pose(image_to_face_axes(landmarks)[self._stable], self._face.vertices[self._stable])
-        return float(np.linalg.norm(pose.head_rotation_vector()))
 
     def laid_on(self, face: BaseFace, neutral: np.ndarray) -> tuple[np.ndarray, tuple[int, int]] | None:
         """(the shut eyes in ``face``'s reference picture's pixels, cut to the eyelids' box; its top-left
@@ -244,7 +240,7 @@ def first_seconds(source, base: BaseFace, wanted: int | None, seconds: float) ->
     past OPEN_GAP with the head turned under MOUTH_TURN degrees."""
     from facedeform.sender.tracker import FaceTracker
 
-    tracker, stable = FaceTracker(), list(STABLE_LANDMARKS)
+    tracker = FaceTracker()
     window = max(1, round(seconds * source.fps))
     kept: list[tuple[float, int, float, FirstSeconds]] = []  # (cost, index, eyes' opening, frame), cheapest first
     mouth, mouth_gap, seen, count, most_open = None, OPEN_GAP, 0, 0, 0.0
@@ -252,9 +248,8 @@ def first_seconds(source, base: BaseFace, wanted: int | None, seconds: float) ->
         index = count - 1
         landmarks = tracker.track(frame)
         if landmarks is not None:
-            points = image_to_face_axes(landmarks)
-            pose = fit_pose(points[stable], base.vertices[stable])
-            gap, turn = float(lip_gap(landmarks)), float(np.linalg.norm(pose.head_rotation_vector()))
+            points, pose, turn = _posed(landmarks, base)
+            gap = float(lip_gap(landmarks))
             in_window = seen < window
             seen += in_window
             if in_window and gap > mouth_gap and turn < MOUTH_TURN:
@@ -278,6 +273,15 @@ def first_seconds(source, base: BaseFace, wanted: int | None, seconds: float) ->
     best = kept[0][3]
     best.mouth = mouth
     return best
+
+
+def _posed(landmarks: np.ndarray, face: BaseFace) -> tuple[np.ndarray, Pose, float]:
+    """(``landmarks`` in face axes, the head pose fitted to them against ``face`` over the stable
+    landmarks, its turn in degrees)."""
+    points = image_to_face_axes(landmarks)
+    stable = list(STABLE_LANDMARKS)
+    pose = fit_pose(points[stable], face.vertices[stable])
+    return points, pose, float(np.linalg.norm(pose.head_rotation_vector()))
 
 
 def _learn(video, face: BaseFace, neutral: int, patterns: int, over: str, seconds: float, on_frame):

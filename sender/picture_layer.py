@@ -235,4 +235,3 @@ class PictureLayer:
         self._credit -= bits
         self._last_key = seq if key else self._last_key
         return packets
-

@@ -102,15 +102,20 @@ class Eyelids:
         weights = [float(np.clip((c - CLOSING) / (CLOSED - CLOSING), 0.0, 1.0)) for c in closures]
         if not any(weights):
             return out
-        skin = self._own if self._own is not None else self._skin
-        if skin is None or (self._own is None and self._of is not picture):
+        skin = self._own if self._own is not None else self._drawn_skin(picture, crop)
+        blend = sum(w * soft for w, soft in zip(weights, self._soft))
+        return np.clip(np.rint(out + blend * (skin.astype(np.float32) - out)), 0, 255).astype(np.uint8)
+
+    def _drawn_skin(self, picture: np.ndarray, crop: np.ndarray) -> np.ndarray:
+        """The box ``crop`` of ``picture`` with both eyes filled by skin and a line of lashes, kept
+        while the picture is the same."""
+        if self._skin is None or self._of is not picture:
             self._skin = skin = _lid_skin(crop, self._masks)
             for mask, (line, thickness) in zip(self._masks, self._lashes):
                 dark = np.percentile(crop[mask > 0], 10, axis=0)  # the lashes' colour
                 cv2.polylines(skin, [line], False, [float(c) for c in dark], thickness, cv2.LINE_AA, LASH_BITS)
             self._of = picture
-        blend = sum(w * soft for w, soft in zip(weights, self._soft))
-        return np.clip(np.rint(out + blend * (skin.astype(np.float32) - out)), 0, 255).astype(np.uint8)
+        return self._skin
 
 
 class _Opening:
