@@ -7,7 +7,8 @@ stream (fd-send --face) and without it (--face-by-id: the receiver holds it): th
 first whole-picture frame can be drawn (the header, the face model, the first frame's packets) and
 the seconds they take on a link of exactly the call's rate; the whole minute's bytes. Beside them
 x264 and x265 at their coarsest (CRF 51) on the same minute: its bytes and rate, and the bytes and
-seconds of their first frame at that rate.
+seconds of their first frame at that rate. And the face paced (fd-send --paced-face): the seconds
+until the first frame drawn with its preview and with the face itself, and the minute's bytes.
 
     .venv/bin/python benchmarks/bench_call_start.py /path/to/dev/*.mp4 --rates 2 4 8 --out results/
 """
@@ -22,6 +23,7 @@ import numpy as np
 import facedeform
 from facedeform.experiment.baselines import CODECS, encode_decode
 from facedeform.experiment.clips import crops
+from facedeform.protocol.stream import Frame, Model, StreamDecoder
 
 CALL = 60.0  # seconds
 BASELINES = ("x264", "x265")
@@ -36,6 +38,23 @@ def ours(frames: list, fps: float, face, kbps: float, embed: bool) -> dict:
     if embed:
         row["call_bytes"] = first + sum(map(len, chunks))
     chunks.close()
+    return row
+
+
+def paced(frames: list, fps: float, face, kbps: float) -> dict:
+    """The same call with its face paced (fd-send --paced-face): the bytes, and seconds at the call's rate,
+    until the first frame drawn with the preview and with the face itself; the minute's bytes."""
+    chunks = facedeform.encode(frames, face, fps=fps, bitrate=1000 * kbps, paced_face=True)
+    decoder, read, row, waiting = StreamDecoder(), 0, {}, None
+    for chunk in chunks:
+        read += len(chunk)
+        for event in decoder.feed(chunk):
+            if isinstance(event, Model):
+                waiting = "preview" if event.preview else "face"
+            elif isinstance(event, Frame) and waiting is not None:
+                row[f"{waiting}_bytes"], row[f"{waiting}_seconds"] = read, 8 * read / (1000 * kbps)
+                waiting = None
+    row["call_bytes"] = read
     return row
 
 
@@ -64,22 +83,25 @@ def main() -> None:
         row: dict = {"clip": clip.name, "face_bytes": len(face.data)}
         for kbps in args.rates:
             row[f"{kbps:g}k"] = {"in_stream": ours(frames, clip.fps, face, kbps, True),
-                                 "by_id": ours(frames, clip.fps, face, kbps, False)}
+                                 "by_id": ours(frames, clip.fps, face, kbps, False),
+                                 "paced": paced(frames, clip.fps, face, kbps)}
         for codec in BASELINES:
             row[codec] = theirs(frames, clip.fps, codec, work)
         rows.append(row)
         print(json.dumps(row), flush=True)
     (args.out / "call_start.json").write_text(json.dumps(rows, indent=1) + "\n")
-    print("| clip | face KB | " + " | ".join(f"{r:g} kbit/s: first frame KB, s (face held: s); minute KB"
-                                            for r in args.rates)
+    print("| clip | face KB | " + " | ".join(f"{r:g} kbit/s: first frame KB, s (face held: s; paced: preview s, "
+                                            "face s); minute KB (paced)" for r in args.rates)
           + " | " + " | ".join(f"{c} floor: kbit/s; first frame KB, s; minute KB" for c in BASELINES) + " |")
     print("|---" * (2 + len(args.rates) + len(BASELINES)) + "|")
     for row in rows:
         cells = [row["clip"], f"{row['face_bytes'] / 1000:.1f}"]
         for kbps in args.rates:
-            inband, held = row[f"{kbps:g}k"]["in_stream"], row[f"{kbps:g}k"]["by_id"]
+            inband, held, late = (row[f"{kbps:g}k"][k] for k in ("in_stream", "by_id", "paced"))
             cells.append(f"{inband['first_bytes'] / 1000:.1f}, {inband['first_seconds']:.1f} "
-                         f"({held['first_seconds']:.2f}); {inband['call_bytes'] / 1000:.1f}")
+                         f"({held['first_seconds']:.2f}; {late.get('preview_seconds', float('nan')):.1f}, "
+                         f"{late.get('face_seconds', float('nan')):.1f}); {inband['call_bytes'] / 1000:.1f} "
+                         f"({late['call_bytes'] / 1000:.1f})")
         for codec in BASELINES:
             b = row[codec]
             cells.append(f"{b['kbit_per_s']:.1f}; {b['first_bytes'] / 1000:.1f}, {b['first_seconds']:.2f}; "
@@ -88,6 +110,8 @@ def main() -> None:
     means = {k: np.mean([r[f"{k:g}k"]["in_stream"]["first_seconds"] for r in rows]) for k in args.rates}
     print("mean seconds to the first whole picture, face in the stream: "
           + ", ".join(f"{s:.1f} at {k:g} kbit/s" for k, s in means.items()))
+    previews = {k: np.mean([r[f"{k:g}k"]["paced"].get("preview_seconds", np.nan) for r in rows]) for k in args.rates}
+    print("the same, paced (the preview's): " + ", ".join(f"{s:.1f} at {k:g} kbit/s" for k, s in previews.items()))
 
 
 if __name__ == "__main__":

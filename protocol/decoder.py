@@ -333,8 +333,12 @@ class PacketDecoder:
             return []
         if offset > len(self._model) or offset + len(chunk) > self._header.model_size:
             return None
+        had, preview = len(self._model), self._header.preview_size
         self._model += chunk
-        return [Model(bytes(self._model))] if len(self._model) == self._header.model_size else []
+        events = [Model(bytes(self._model[:preview]), preview=True)] if had < preview <= len(self._model) else []
+        if len(self._model) == self._header.model_size:
+            events.append(Model(bytes(self._model[preview:])))
+        return events
 
     def _on_picture(self, body: bytes) -> list | None:
         """A piece of a picture layer's payload: pieces come in order, one payload at a time (a new

@@ -100,11 +100,17 @@ class PacketEncoder:
             raise BitstreamError(f"dead zone must be 0.5-{MAX_DEAD_ZONE:g} steps, not {steps!r}")
         self._dead_zone = steps
 
-    def header(self) -> list[bytes]:
-        """The header packet, then the face model in chunks."""
-        chunks = [build(MODEL, varint(i) + self._model[i:i + MODEL_CHUNK])
-                  for i in range(0, len(self._model), MODEL_CHUNK)]
+    def header(self, model: bool = True) -> list[bytes]:
+        """The header packet, then (``model``) the face model in chunks."""
+        chunks = [self.model_chunk(i, MODEL_CHUNK) for i in range(0, len(self._model), MODEL_CHUNK)] if model else []
         return [build(HEADER, encode_header(self._h))] + chunks
+
+    def model_chunk(self, offset: int, size: int) -> bytes:
+        """The packet of the face model's bytes from ``offset``, at most ``size`` of them (1-MODEL_CHUNK);
+        a decoder takes the chunks in order."""
+        if not 0 <= offset < len(self._model) or not 1 <= size <= MODEL_CHUNK:
+            raise ValueError(f"no model chunk of {size} bytes at {offset} (of {len(self._model)})")
+        return build(MODEL, varint(offset) + self._model[offset:offset + size])
 
     def picture(self, frame: int, data: bytes) -> list[bytes]:
         """The picture layer's packets of its payload for frame ``frame`` (a frame number, of the

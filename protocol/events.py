@@ -22,9 +22,11 @@ class Frame:
 
 @dataclass(frozen=True)
 class Model:
-    """The face model bytes carried in-band after the header (their own format, see codec/)."""
+    """The face model bytes carried in-band after the header (their own format, see codec/);
+    ``preview``: a preview face's (the header's ``preview_size``), to draw until the model has come."""
 
     data: bytes
+    preview: bool = False
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,10 @@ _FLAG_LEVEL_STEPS = 8
 #: The names and the basis are a layout every package holds (protocol.layouts), named by its index
 #: in one byte: the default layout's header 1,825 -> 65 bytes.
 _FLAG_SHIPPED = 16
+#: The in-band model starts with a preview face of ``preview_size`` bytes, a varint after ``model_size``
+#: (a paced face, sender/face_pacing.py); a stream without one is written as before, byte for byte.
+_FLAG_PREVIEW = 32
+_FLAGS = _FLAG_F3_WITH_JAW | _FLAG_STATIC | _FLAG_BASIS | _FLAG_LEVEL_STEPS | _FLAG_SHIPPED | _FLAG_PREVIEW
 ID_BYTES = 4  # of a header's id, which every keyframe packet carries
 
 
@@ -51,6 +55,8 @@ class Header:
     one frame in ``divisor`` is sent, the decoder interpolates the others;
     skip_static: frames equal to the previous cost a flag only; model_size:
     bytes of face model carried after the header (0: referenced by face_id only);
+    preview_size: of those, the first bytes that are a preview face (a face file of its own, drawn
+    until the whole model has come; 0: none);
     width, height: the source's frame size in pixels (0: not given), the receiver's default
     output size; rule: the deformation rule the sender assumed, one of :data:`RULES`;
     basis: (k, k) int8 coding axes (``protocol.basis``) or None: the coded values are then
@@ -74,6 +80,7 @@ class Header:
     width: int = 0
     height: int = 0
     rule: str = RULES[0]
+    preview_size: int = 0
 
     def __post_init__(self) -> None:
         names, steps = self.names, np.asarray(self.steps, dtype=np.float64)
@@ -83,7 +90,8 @@ class Header:
             raise ValueError(f"quantiser steps must be one number in (0, {MAX_STEP:g}] per parameter")
         if not (0 < self.fps <= 1000 and 1 <= self.key_interval <= MAX_KEY_INTERVAL
                 and 1 <= self.divisor <= MAX_DIVISOR and 0 <= self.model_size <= MAX_MODEL
-                and 0 <= self.quality <= 255 and 0 <= self.width <= MAX_SIDE and 0 <= self.height <= MAX_SIDE):
+                and 0 <= self.quality <= 255 and 0 <= self.width <= MAX_SIDE and 0 <= self.height <= MAX_SIDE
+                and (self.preview_size == 0 or 0 < self.preview_size < self.model_size)):
             raise ValueError("header field out of range")
         if self.rule not in RULES:
             raise ValueError(f"unknown deformation rule {self.rule!r} (one of {', '.join(RULES)})")
@@ -133,10 +141,12 @@ def encode_header(h: Header) -> bytes:
     level, held = _level_steps(h), shipped_index(h.names, h.basis)
     written = h.basis is not None and held is None
     flags = (_FLAG_F3_WITH_JAW * h.f3_with_jaw | _FLAG_STATIC * h.skip_static | _FLAG_BASIS * written
-             | _FLAG_LEVEL_STEPS * level | _FLAG_SHIPPED * (held is not None))
+             | _FLAG_LEVEL_STEPS * level | _FLAG_SHIPPED * (held is not None) | _FLAG_PREVIEW * bool(h.preview_size))
     out = bytearray(MAGIC + bytes([VERSION, flags, h.quality, h.key_interval, h.divisor, RULES.index(h.rule)]))
     out += varint(round(h.fps * 1000)) + varint(h.width) + varint(h.height)
     out += bytes.fromhex(h.face_id) + varint(h.model_size)
+    if h.preview_size:
+        out += varint(h.preview_size)
     if held is not None:
         out.append(held)
     else:
@@ -159,8 +169,7 @@ def parse_header(body: bytes) -> Header:
     flags, quality, key_interval, divisor, rule = body[3:8]
     if rule >= len(RULES):
         raise BitstreamError(f"unknown deformation rule {rule}")
-    if flags & ~(_FLAG_F3_WITH_JAW | _FLAG_STATIC | _FLAG_BASIS | _FLAG_LEVEL_STEPS | _FLAG_SHIPPED) or (
-            flags & _FLAG_SHIPPED and flags & _FLAG_BASIS):
+    if flags & ~_FLAGS or (flags & _FLAG_SHIPPED and flags & _FLAG_BASIS):
         raise BitstreamError(f"unknown header flags {flags:#04x}")
     fps_milli, pos = _varint(body, 8, 1_000_000)
     width, pos = _varint(body, pos, MAX_SIDE)
@@ -169,6 +178,9 @@ def parse_header(body: bytes) -> Header:
         raise BitstreamError("stream header cut short")
     face_id = body[pos:pos + 32].hex()
     model_size, pos = _varint(body, pos + 32, MAX_MODEL)
+    preview_size = 0
+    if flags & _FLAG_PREVIEW:
+        preview_size, pos = _varint(body, pos, MAX_MODEL)
     basis: np.ndarray | None = None
     if flags & _FLAG_SHIPPED:
         index, table = _byte(body, pos), shipped()
@@ -195,7 +207,7 @@ def parse_header(body: bytes) -> Header:
     try:
         return Header(fps_milli / 1000, tuple(names), steps, face_id, bool(flags & _FLAG_F3_WITH_JAW), quality,
                       key_interval, divisor, bool(flags & _FLAG_STATIC), model_size, basis,
-                      width, height, RULES[rule])
+                      width, height, RULES[rule], preview_size)
     except ValueError as exc:
         raise BitstreamError(f"stream header: {exc}") from None
 

@@ -32,7 +32,7 @@ def sample_bits_per_second(header: Header, sample: Sequence[tuple[np.ndarray, bo
     sealing adds to each packet (``SecureSealer.overhead``, and the envelope's length field; a sealed
     packet also takes a sync byte). ``copies``: the packets go as datagrams, each carrying that many
     packets before it again (``Datagrams``; the header's repeats for late joiners not counted)."""
-    encoder = PacketEncoder(replace(header, model_size=0), frames_per_packet, dead_zone=dead_zone)
+    encoder = PacketEncoder(replace(header, model_size=0, preview_size=0), frames_per_packet, dead_zone=dead_zone)
     packets = [p for params, seen in sample for p in encoder.frame(params, seen)] + encoder.end()[:-1]
     if copies is None:
         size = stream_size(packets, sealed=bool(seal_bytes))

@@ -103,8 +103,7 @@ class ReceiveSession:
         if isinstance(event, Header):
             self._start(event)
         elif isinstance(event, Model):
-            if self._view is None:
-                self._use_model(event.data)
+            self._model(event)
         elif isinstance(event, Frame):
             self._frame(event, arrived)
         elif isinstance(event, Picture):
@@ -121,7 +120,7 @@ class ReceiveSession:
         from facedeform.receiver.face_view import PictureView
 
         view = self._view
-        if not isinstance(view, PictureView):
+        if not isinstance(view, PictureView) or self.face_kind == "preview":  # the layer draws over the face itself
             return
         if view.layer.take(event.seq, event.data):
             self.layer_packets += 1
@@ -140,6 +139,8 @@ class ReceiveSession:
             self._show(self._given, "file")
         elif not header.model_size:
             self._show(load_base_face(), "generic")
+        elif header.preview_size:  # a paced face: the generic face until its preview has come
+            self._show(load_base_face(), "generic", check_id=False)
         # else: the model follows in-band, before the first frame
 
     @property
@@ -149,8 +150,20 @@ class ReceiveSession:
             raise BitstreamError("a model or frame before the stream's header")
         return self._header_seen
 
-    def _use_model(self, data: bytes) -> None:
-        face = decode_face(data, "the stream's face model")
+    def _model(self, event: Model) -> None:
+        """The stream's face model, drawn from the next frame on unless the user gave theirs; a
+        preview only until then."""
+        if self._given is not None or self.face_kind == "stream" or (event.preview and self.face_kind == "preview"):
+            return
+        if event.preview:  # only a first look: one that cannot be read leaves the generic face
+            try:
+                preview = decode_face(event.data, "the stream's preview face")
+            except InputError as exc:
+                self._warn(f"{exc}: drawing the generic face until the face model has come")
+                return
+            self._show(preview, "preview", check_id=False)
+            return
+        face = decode_face(event.data, "the stream's face model")
         if face.content_id != self._header.face_id:
             raise BitstreamError("the stream's face model does not match the face id in its header")
         self._show(face, "stream")

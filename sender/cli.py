@@ -26,6 +26,7 @@ EPILOG = """examples:
   fd-send frames/%04d.png --fps 30 -o tcp://127.0.0.1:5000
   fd-send --camera 0 -o udp://127.0.0.1:5000
   fd-send talk.mp4 --key call.key -o udp://127.0.0.1:5000
+  fd-send --camera 0 --face me.fdface --paced-face --bitrate 4 -o tcp://127.0.0.1:5000
 """
 
 
@@ -68,6 +69,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "generic base face")
     p.add_argument("--face-by-id", action="store_true",
                    help="with --face, send only the model's id: the receiver holds the file (fd-recv --face)")
+    p.add_argument("--paced-face", action="store_true",
+                   help="with --face and --bitrate (or --quality), send the face model beside the frames "
+                        "within the rate, a coarse preview first, instead of all before the first frame: the "
+                        "receiver draws at once (the generic face, then the preview, then the face); for live "
+                        "links (a file then starts with the generic face)")
     p.add_argument("--neutral", type=number(*LIMITS["neutral"], kind=int), metavar="FRAME",
                    help="frame index (from 0) of the person's rest face; default: the frame of the "
                         "first second with the mouth most closed, its eyes open")
@@ -143,6 +149,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error("--tag-bits goes with --key FILE")
     if args.face_by_id and args.face is None:
         p.error("--face-by-id goes with --face FILE")
+    if args.paced_face and (args.face is None or args.face_by_id):
+        p.error("--paced-face goes with --face FILE (without --face-by-id)")
+    if args.paced_face and args.bitrate is None and args.quality is None:
+        p.error("--paced-face goes with --bitrate KBPS or --quality N, the rate it is paced within")
     return args
 
 
@@ -179,7 +189,7 @@ def _run(args) -> int:
                         dead_zone=args.dead_zone, bitrate=None if args.bitrate is None else 1000 * args.bitrate,
                         basis=not args.no_basis, divisor=args.send_every,
                         datagrams=args.output.startswith("udp://"), redundancy=args.redundancy, rule=args.rule,
-                        quality=args.quality)
+                        quality=args.quality, paced_face=args.paced_face)
     if face is not None and config.bitrate is not None and config.picture_layer:
         from facedeform.codec.render.render import WARMING_UP, warm_up
         from facedeform.common.progress import slow_step

@@ -69,7 +69,9 @@ class SendConfig:
     (``codec.model.regions.RULES``) the parameters are fitted to and the receiver deforms with, named in
     the header; picture_layer: with a ``bitrate`` and a face with a reference picture, spend what
     the parameters leave of it on the real frame as a small video where the model's picture
-    misses it (sender/picture_layer.py; the parameters then aim at :func:`parameter_rate` of it).
+    misses it (sender/picture_layer.py; the parameters then aim at :func:`parameter_rate` of it);
+    paced_face: the face model carried in the stream goes beside the frames within ``bitrate``, a
+    preview first, instead of before the first frame (sender/face_pacing.py; byte streams only).
     """
 
     level: int | None = None
@@ -89,6 +91,7 @@ class SendConfig:
     rule: str = DEFAULT_RULE
     picture_layer: bool = True
     quality: int | None = None
+    paced_face: bool = False
 
     def __post_init__(self) -> None:
         for name, (lo, hi) in LIMITS.items():
@@ -102,6 +105,9 @@ class SendConfig:
         if self.layout not in LAYOUT_NAMES:
             raise InputError(f"unknown layout {self.layout!r} (one of {', '.join(LAYOUT_NAMES)})")
         check_rule(self.rule)
+        if self.paced_face and (self.bitrate is None or not self.embed_face or self.datagrams):
+            raise InputError("a paced face goes within a --bitrate (or --quality), in the stream (not --face-by-id), "
+                             "over a file, pipe or tcp:// (over udp:// the face goes before the first frame)")
         if self.tag_bits not in TAG_BITS:
             raise InputError(f"tag bits must be a multiple of 8 from {TAG_BITS[0]} to {TAG_BITS[-1]}")
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facedeform.codec.face_file.format import Face
+from facedeform.codec.face_file.format import Face, preview_face
 from facedeform.codec.model.face_model import load_base_face
 from facedeform.codec.model.regions import DEFAULT_RULE
 from facedeform.common.errors import InputError
@@ -37,6 +37,7 @@ from facedeform.protocol.stream import (
 )
 from facedeform.sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing, resolve_layout
 from facedeform.sender.config import DATAGRAM_FRAMES, SPEAKER_RATE, STREAM_FRAMES, SendConfig, parameter_rate
+from facedeform.sender.face_pacing import FacePacing
 from facedeform.sender.link import LEAN_KEYS, LinkWatch
 from facedeform.sender.picture_layer import PictureLayer, layer_pays
 from facedeform.sender.pixel_pose import PixelPose, refines
@@ -63,14 +64,16 @@ def key_seconds(header: Header) -> float:
 
 def stream_header(names: tuple[str, ...], fps: float, face_id: str, quality: int = DEFAULT_QUALITY,
                   model_size: int = 0, basis: np.ndarray | None = None, divisor: int = 1,
-                  size: tuple[int, int] = (0, 0), rule: str = DEFAULT_RULE, keys: float = 1.0) -> Header:
+                  size: tuple[int, int] = (0, 0), rule: str = DEFAULT_RULE, keys: float = 1.0,
+                  preview_size: int = 0) -> Header:
     """The header fd-send writes: a keyframe every ``keys`` seconds (of the frames sent: one in
     ``divisor``), and static-frame flags (with the dead zone a still face sends unchanged frames,
     a flag each); ``size``: the source's (width, height) in pixels; ``rule``: the deformation rule
-    fitted to."""
+    fitted to; ``preview_size``: the in-band model's first bytes that are a preview face."""
     return Header(fps, names, steps_for(names, quality), face_id, quality=quality,
                   key_interval=max(1, min(255, round(keys * fps / divisor))), divisor=divisor, skip_static=True,
-                  model_size=model_size, basis=basis, width=size[0], height=size[1], rule=rule)
+                  model_size=model_size, basis=basis, width=size[0], height=size[1], rule=rule,
+                  preview_size=preview_size)
 
 
 def sample_basis(names: tuple[str, ...], sample: list[np.ndarray]) -> np.ndarray | None:
@@ -166,6 +169,12 @@ class SendSession:
         self._face_id = model.content_id
         self._face = model
         self._model = face.data if face is not None and config.embed_face else b""
+        if config.paced_face and not self._model:
+            raise InputError("a paced face needs the face model (--face FILE)")
+        #: a paced face's preview goes before the face itself (sender/face_pacing.py)
+        self._preview = preview_face(model) if config.paced_face else b""
+        self._model = self._preview + self._model
+        self._pacing: FacePacing | None = None
         #: the picture layer where the call sends one (``_layer_rate``), once the header is
         self.picture: PictureLayer | None = None
         self._basis: np.ndarray | None = None
@@ -200,13 +209,13 @@ class SendSession:
 
     def _parameter_aim(self, layout: str) -> tuple[float | None, int, float]:
         """(bit/s the parameters aim at, None for a fixed level; the finest level to take; the share of
-        the aim the level's sample must fit): their share of --bitrate where a picture layer runs, all
-        of it where none does (the level chosen within LEVEL_SHARE of it), or by default with the
-        speaker's own motion basis at most SPEAKER_RATE and DEFAULT_QUALITY (a finer level bought no
-        visible change where it fitted)."""
+        the aim the level's sample must fit): their share of --bitrate where a picture layer runs or a
+        paced face comes (for the whole call: the level is the header's), all of it where neither does
+        (the level chosen within LEVEL_SHARE of it), or by default with the speaker's own motion basis
+        at most SPEAKER_RATE and DEFAULT_QUALITY (a finer level bought no visible change where it fitted)."""
         bitrate = self.config.bitrate
         if bitrate is not None:
-            if self._layer_rate is not None:
+            if self._layer_rate is not None or self.config.paced_face:
                 return parameter_rate(bitrate), max(QUALITIES), 1.0
             return bitrate, max(QUALITIES), LEVEL_SHARE
         default = self.config.level is None and layout == "personal"
@@ -215,7 +224,7 @@ class SendSession:
     def _header(self, quality: int) -> Header:
         return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model),
                              self._basis, self.config.divisor, self.source.size, self.config.rule,
-                             DATAGRAM_KEYS if self.config.datagrams else 1.0)
+                             DATAGRAM_KEYS if self.config.datagrams else 1.0, len(self._preview))
 
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)
@@ -248,13 +257,15 @@ class SendSession:
                 self._keeper = RateKeeper(aim, fps, self.config.dead_zone)
                 self._check_room(quality, sample)
             self._configure(quality)
-            if self._layer_rate is not None:
-                self.picture = PictureLayer(self._face, self.header, self._layer_rate, self.sealed,
-                                            self.config.datagrams)
+            if self._layer_rate is not None and not self._preview:
+                self._start_layer()
             results = chain(first, results)
+        if self._preview and self.config.bitrate is not None:  # (a preview is only made with a bitrate)
+            self._pacing = FacePacing(self.encoder, len(self._model), self.config.bitrate, self.source.fps,
+                                      self.sealed)
         for seq, result in enumerate(results):
             if seq == 0:
-                header = self._seal(self.encoder.header())
+                header = self._seal(self.encoder.header(model=self._pacing is None))
                 if self.sealer is not None:
                     header.insert(0, self.sealer.preamble())
                 self.header_bytes = stream_size(header, self.sealed)
@@ -275,10 +286,21 @@ class SendSession:
             drawn_from = self.encoder.reconstruction  # what the receiver decodes of this frame
             if self.picture is not None and result.frame is not None and drawn_from is not None:
                 packets = self._seal(self.picture.step(seq, result.frame, drawn_from, self.encoder, packets)) + packets
+            if self._pacing is not None:
+                packets = self._seal(self._pacing.step(8 * stream_size(packets, self.sealed))) + packets
+                if self._pacing.drained:  # the receiver holds the face: the layer from the next frame
+                    self._start_layer(self._pacing.recent)
+                    self._pacing = None
             self.stream_bytes += stream_size(packets, self.sealed)
             if packets:
                 yield packets
         yield self.end()
+
+    def _start_layer(self, recent: Sequence[int] = ()) -> None:
+        """The picture layer from the next frame on; ``recent``: the bits of the frames before it."""
+        if self._layer_rate is not None:
+            self.picture = PictureLayer(self._face, self.header, self._layer_rate, self.sealed,
+                                        self.config.datagrams, recent)
 
     def _follow_link(self) -> None:
         """Over datagrams, with the receiver's reports and no key: the copies, a frame a datagram and a

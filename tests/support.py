@@ -9,6 +9,7 @@ import lzma
 import selectors
 import subprocess
 import sys
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from facedeform.codec.render.picture import Placement
 from facedeform.common.parameters import PAPER_PARAMS
 from facedeform.protocol.stream import Datagrams, Header, PacketEncoder, StreamDecoder, StreamEncoder, steps_for
 from facedeform.receiver.cli import main
+from facedeform.sender import picture_layer
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
@@ -270,3 +272,22 @@ def a_picture_with_shut_eyes():
     """A picture with an open mouth and shut eyes (face file version 9)."""
     shut = np.dstack([np.full((12, 30), 90), np.tile(np.arange(30) * 5, (12, 1)), np.full((12, 30), 40)])
     return replace(a_picture_with_a_mouth(), shut_eyes=shut.astype(np.uint8), shut_eyes_at=(20, 30))
+
+
+@contextmanager
+def sender_pictures():
+    """The sender's own picture of every frame (what its picture layer reconstructs), as a list
+    filled while the context lasts."""
+    pictures: list[np.ndarray] = []
+    original = picture_layer.PictureLayer.step
+
+    def step(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        pictures.append(self.picture.copy())
+        return out
+
+    picture_layer.PictureLayer.step = step
+    try:
+        yield pictures
+    finally:
+        picture_layer.PictureLayer.step = original

@@ -114,6 +114,18 @@ def test_a_bomb_in_band_is_one_line(tmp_path):
     assert "reference picture" in result.stderr.decode()
 
 
+def test_a_bomb_as_a_preview_face_is_one_warning_and_the_face_still_comes(tmp_path):
+    bomb, face = with_picture_bytes(png_header_only(30000, 30000), 256, 256), personal_face(a_person()[0])
+    h = replace(header(), face_id=face_file.face_id(face), model_size=len(bomb) + len(face), preview_size=len(bomb))
+    enc = StreamEncoder(h, 2, bomb + face)
+    stream = enc.header() + b"".join(enc.frame(p, True) for p in smooth_tracks(10)) + enc.end()
+    result = run([*RECV, "-", "-o", str(tmp_path / "out.y4m"), "--json"], stdin=stream)
+    assert result.returncode == 0, result.stderr.decode()
+    lines = result.stderr.decode().splitlines()
+    assert sum("preview face" in line and "reference picture" in line for line in lines) == 1
+    assert '"face": "stream"' in result.stderr.decode() and b"Traceback" not in result.stderr
+
+
 def test_a_frame_size_beyond_the_limit_is_refused_where_the_header_is_parsed():
     body = encode_header(replace(header(), width=MAX_SIDE, height=MAX_SIDE))
     assert parse_header(body).width == MAX_SIDE

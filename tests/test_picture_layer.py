@@ -1,7 +1,6 @@
 """The picture layer: the frame as a small video beside the model's picture, under a rate, in a closed loop."""
 
 import tracemalloc
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -15,28 +14,9 @@ from facedeform.sender import picture_layer
 from facedeform.sender.config import SendConfig
 from facedeform.sender.picture_layer import layer_video_size
 from facedeform.sender.session import SendSession
-from tests.support import CLIP
+from tests.support import CLIP, sender_pictures
 
 RATE = 10.0  # kbit/s
-
-
-@contextmanager
-def sender_pictures():
-    """The sender's own picture of every frame (what its picture layer reconstructs), as a list
-    filled while the context lasts."""
-    pictures: list[np.ndarray] = []
-    original = picture_layer.PictureLayer.step
-
-    def step(self, *args, **kwargs):
-        out = original(self, *args, **kwargs)
-        pictures.append(self.picture.copy())
-        return out
-
-    picture_layer.PictureLayer.step = step
-    try:
-        yield pictures
-    finally:
-        picture_layer.PictureLayer.step = original
 
 
 @pytest.fixture(scope="module")

@@ -314,6 +314,39 @@ def test_face_model_travels_after_the_header():
     assert [e.data for e in events if isinstance(e, Model)] == [model]
 
 
+def test_a_preview_face_comes_first_and_the_model_between_frames():
+    """A paced face (sender/face_pacing.py): the model's chunks between frames, of any size; the
+    preview is handed over once its bytes are in (the chunk that completes it runs on into the
+    model), the model once it is whole, each between the frames the chunks came between."""
+    preview, model = bytes(range(256)) * 3, bytes(range(255, -1, -1)) * 12
+    h = header(model_size=len(preview) + len(model), preview_size=len(preview))
+    assert parse_header(encode_header(h)) == h and parse_header(encode_header(h)).preview_size == len(preview)
+    enc = PacketEncoder(h, model=preview + model)
+    packets, offset = enc.header(model=False), 0
+    for size, x in zip([500, 600, 1024, 1024, 1000, 100], walk(6, 13)):
+        packets += enc.frame(x, True)
+        if offset < h.model_size:
+            packets.append(enc.model_chunk(offset, size))
+            offset += size
+    events, dec = decode(frame_bytes(packets + enc.end()), chunk=11)
+    kinds = [("preview" if e.preview else "model", e.data) if isinstance(e, Model) else type(e).__name__
+             for e in events if not isinstance(e, Header)]
+    assert kinds == ["Frame", "Frame", ("preview", preview), "Frame", "Frame", "Frame", ("model", model),
+                     "Frame", "End"]
+    assert not dec.stats.damaged
+
+
+def test_a_preview_must_be_part_of_the_model():
+    for model_size, preview_size in ((100, 100), (0, 10), (100, 200)):
+        with pytest.raises(ValueError, match="out of range"):
+            header(model_size=model_size, preview_size=preview_size)
+    h = header(model_size=100, preview_size=60)
+    body = encode_header(h)
+    at = body.index(varint(100) + varint(60)) + 1  # the preview's size, made the model's
+    with pytest.raises(BitstreamError, match="out of range"):
+        StreamDecoder().feed(build(HEADER, body[:at] + varint(100) + body[at + 1:]))
+
+
 @pytest.mark.parametrize("data, message", [
     (b"", "empty input"),
     (b"hello, this is not a stream", "not an fd stream"),
@@ -485,7 +518,7 @@ def header_bytes_with(h: Header, at: int, value: bytes, length: int = 1) -> byte
 
 @pytest.mark.parametrize("patch, message", [
     (lambda h: header_bytes_with(h, 7, b"\x02"), "unknown deformation rule 2"),
-    (lambda h: header_bytes_with(h, 3, b"\x20"), "unknown header flags"),
+    (lambda h: header_bytes_with(h, 3, b"\x40"), "unknown header flags"),
     (lambda h: header_bytes_with(h, 3, b"\x14"), "unknown header flags"),  # a held layout's basis written too
     (lambda h: header_bytes_with(header(NAMED["mouth"]), 3, b"\x10"),  # its count of 39 names read as an index
      "layout 39, which this decoder does not hold"),

@@ -1,0 +1,120 @@
+"""A paced face (fd-send --paced-face): the face model beside the frames within the rate, a preview first."""
+
+import numpy as np
+import pytest
+
+import facedeform
+from facedeform.codec.face_file.format import decode_face, preview_face
+from facedeform.common.errors import BitstreamError, InputError
+from facedeform.protocol.stream import Frame, Model, StreamDecoder, frame_bytes
+from facedeform.receiver.session import ReceiveSession
+from facedeform.sender.config import SendConfig
+from facedeform.sender.session import SendSession
+from facedeform.sender.sources import LoopedSource
+from tests.support import CLIP, SEND, run, sender_pictures
+
+RATE = 30.0  # kbit/s: the sample's face (about 12.5 KB) is through in about 4 of the call's 12 s
+SECONDS = 12.0
+
+
+@pytest.fixture(scope="module")
+def paced(face):
+    """(stream chunks, bits of each frame's packets after the header, the sender's own picture of each
+    frame its picture layer stepped) of the sample looped to SECONDS, its face paced at RATE."""
+    with sender_pictures() as pictures:
+        session = SendSession(LoopedSource(str(CLIP), SECONDS), SendConfig(bitrate=RATE * 1000, paced_face=True),
+                              face=face)
+        chunks, bits = [], []
+        for packets in session.packets():
+            chunks.append(frame_bytes(packets, session.sealed))
+            if len(chunks) > 1:
+                bits += [0] * (session.frame_count - len(bits))
+                bits[-1] += 8 * len(chunks[-1])
+        session.close()
+    return chunks, np.array(bits), pictures
+
+
+def faces_drawn(chunks: list[bytes], held=None) -> list[str]:
+    """Per frame, which face the receiver drew it with (``held``: the face model it holds)."""
+    kinds: list[str] = []
+    session = ReceiveSession(lambda fps, size: [], None, held, warn=lambda line: None)
+    decoder = StreamDecoder()
+    for chunk in chunks:
+        for event in decoder.feed(chunk):
+            session.handle([event], 0.0)
+            if isinstance(event, Frame):
+                kinds.append(session.face_kind)
+    return kinds
+
+
+def test_the_call_starts_at_once_and_the_face_comes_within_the_rate(face, paced):
+    chunks, bits, _ = paced
+    assert len(chunks[0]) < 300  # the header alone
+    kinds = faces_drawn(chunks)
+    assert kinds[0] == "generic" and kinds[-1] == "stream"
+    assert kinds == sorted(kinds, key=["generic", "preview", "stream"].index)  # each once, in that order
+    preview, whole = kinds.index("preview"), kinds.index("stream")
+    assert 0 < preview < whole < 0.6 * len(kinds)
+    carried = len(preview_face(face.model)) + len(face.data)
+    assert 8 * carried / (RATE * 1000) * 25 < whole  # no sooner than the rate allows...
+    assert 8 * sum(map(len, chunks)) < 1.1 * RATE * 1000 * SECONDS  # ...and the call within it
+    window = 50  # frames: 2 s at 25 fps
+    assert np.convolve(bits, np.ones(window), mode="valid").max() <= 1.1 * RATE * 1000 * 2.0
+
+
+def test_a_receiver_that_holds_the_face_draws_it_from_the_start(face, paced):
+    chunks, _, _ = paced
+    assert set(faces_drawn(chunks, face.model)) == {"file"}
+
+
+def test_the_picture_layer_follows_the_face_bit_for_bit(paced):
+    """The layer starts once the face is through; the receiver draws what the sender reconstructs."""
+    chunks, _, pictures = paced
+    drawn = list(facedeform.decode(chunks))
+    assert 0 < len(pictures) < len(drawn) // 2
+    for got, want in zip(drawn[-len(pictures):], pictures, strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_a_preview_is_the_face_coarser_and_still(face):
+    """The preview draws the whole picture (the same size, mesh and placement, a coarser picture)
+    without the motion basis, open mouth or shut eyes."""
+    model = face.model
+    preview = decode_face(preview_face(model))
+    assert preview.motion is None and preview.picture.mouth is None and preview.picture.shut_eyes is None
+    assert preview.picture.image.shape == model.picture.image.shape
+    np.testing.assert_allclose(preview.picture.projection, model.picture.projection)
+    assert np.abs(preview.vertices - model.vertices).max() <= 0.5 / 256 + 1e-9  # within 1/512 of the face's height
+    error = np.abs(preview.picture.image.astype(int) - model.picture.image).mean()
+    assert 0 < error < 8
+
+
+def test_a_call_cut_before_its_face_came_keeps_its_frames(paced):
+    chunks, _, _ = paced
+    kinds = faces_drawn(chunks)
+    cut = kinds.index("preview") + 5  # frames drawn with the preview, the face not yet whole
+    stream = b"".join(chunks[:cut])
+    got = []
+    with pytest.raises(BitstreamError, match="truncated"):
+        for image in facedeform.decode(stream):
+            got.append(image)
+    events = StreamDecoder().feed(stream)
+    assert len(got) == sum(isinstance(e, Frame) for e in events) > 0
+    assert [e.preview for e in events if isinstance(e, Model)] == [True]
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"paced_face": True}, "within a --bitrate"),
+    ({"paced_face": True, "bitrate": 4000, "embed_face": False}, "not --face-by-id"),
+    ({"paced_face": True, "bitrate": 4000, "datagrams": True}, "over udp:// the face goes before"),
+])
+def test_a_paced_face_needs_a_rate_and_a_byte_stream(options, message):
+    with pytest.raises(InputError, match=message):
+        SendConfig(**options)
+
+
+def test_fd_send_says_what_a_paced_face_goes_with(tmp_path):
+    for extra, message in ((["--paced-face", "--bitrate", "4"], b"--paced-face goes with --face"),
+                           (["--paced-face", "--face", str(tmp_path / "x.fdface")], b"goes with --bitrate")):
+        result = run(SEND + [str(CLIP)] + extra)
+        assert result.returncode == 2 and message in result.stderr and b"Traceback" not in result.stderr
