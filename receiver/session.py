@@ -90,6 +90,9 @@ class ReceiveSession:
             raise RuntimeError("finish() before a source was read")
         if source.decoder.header is None:
             raise BitstreamError(source.no_stream())
+        if source.decoder.header.preview_size and self.face_kind in ("generic", "preview"):
+            self._warn(f"the call ended before its face model had come whole: drawn with the "
+                       f"{'preview' if self.face_kind == 'preview' else 'generic face'}")
         if source.decoder.ended:
             return
         if source.timed_out:

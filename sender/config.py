@@ -105,9 +105,13 @@ class SendConfig:
         if self.layout not in LAYOUT_NAMES:
             raise InputError(f"unknown layout {self.layout!r} (one of {', '.join(LAYOUT_NAMES)})")
         check_rule(self.rule)
-        if self.paced_face and (self.bitrate is None or not self.embed_face or self.datagrams):
-            raise InputError("a paced face goes within a --bitrate (or --quality), in the stream (not --face-by-id), "
-                             "over a file, pipe or tcp:// (over udp:// the face goes before the first frame)")
+        if self.paced_face and self.bitrate is None:
+            raise InputError("a paced face goes within a --bitrate (or --quality): give one")
+        if self.paced_face and not self.embed_face:
+            raise InputError("a paced face goes in the stream: not with --face-by-id")
+        if self.paced_face and self.datagrams:
+            raise InputError("a paced face goes over a file, pipe or tcp://; over udp:// the face goes before the "
+                             "first frame (leave out --paced-face)")
         if self.tag_bits not in TAG_BITS:
             raise InputError(f"tag bits must be a multiple of 8 from {TAG_BITS[0]} to {TAG_BITS[-1]}")
 

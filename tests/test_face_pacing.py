@@ -1,5 +1,7 @@
 """A paced face (fd-send --paced-face): the face model beside the frames within the rate, a preview first."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -11,7 +13,7 @@ from facedeform.receiver.session import ReceiveSession
 from facedeform.sender.config import SendConfig
 from facedeform.sender.session import SendSession
 from facedeform.sender.sources import LoopedSource
-from tests.support import CLIP, SEND, run, sender_pictures
+from tests.support import CLIP, RECV, SEND, run, sender_pictures
 
 RATE = 30.0  # kbit/s: the sample's face (about 12.5 KB) is through in about 4 of the call's 12 s
 SECONDS = 12.0
@@ -105,12 +107,26 @@ def test_a_call_cut_before_its_face_came_keeps_its_frames(paced):
 
 @pytest.mark.parametrize("options, message", [
     ({"paced_face": True}, "within a --bitrate"),
-    ({"paced_face": True, "bitrate": 4000, "embed_face": False}, "not --face-by-id"),
+    ({"paced_face": True, "bitrate": 4000, "embed_face": False}, "not with --face-by-id"),
     ({"paced_face": True, "bitrate": 4000, "datagrams": True}, "over udp:// the face goes before"),
 ])
 def test_a_paced_face_needs_a_rate_and_a_byte_stream(options, message):
     with pytest.raises(InputError, match=message):
         SendConfig(**options)
+
+
+def test_fd_recv_says_when_a_call_ended_before_its_face_came(face, tmp_path):
+    """The sample's 3 s at 4 kbit/s bring the preview, not the face: the frames are all written, and
+    fd-recv says with what they were drawn."""
+    face.save(tmp_path / "me.fdface")
+    sent = run(SEND + [str(CLIP), "--face", str(tmp_path / "me.fdface"), "--paced-face", "--bitrate", "4"])
+    assert sent.returncode == 0, sent.stderr.decode()
+    got = run(RECV + ["-", "-o", str(tmp_path / "out.y4m"), "--json"], stdin=sent.stdout)
+    assert got.returncode == 0, got.stderr.decode()
+    lines = got.stderr.decode().splitlines()
+    assert sum("ended before its face model had come whole" in line for line in lines) == 1
+    stats = json.loads(lines[-1])
+    assert stats["written"] == 75 and stats["face"] in ("generic", "preview")
 
 
 def test_fd_send_says_what_a_paced_face_goes_with(tmp_path):
