@@ -46,7 +46,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="output frame rate (default: the stream's); frames are repeated or dropped to meet it")
     p.add_argument("--face", metavar="FILE",
                    help="the sender's face model (fd-enroll); default: the model the stream carries, "
-                        "else the generic face")
+                        "else the generic face (a face paced beside the frames, fd-send --paced-face: the "
+                        "generic face, then its preview, then the face, each from when it has come)")
     p.add_argument("--key", metavar="FILE",
                    help="the stream is sealed with this pre-shared key (fd-keygen): packets that fail "
                         "authentication or replay are dropped and counted; also opens a sealed --face file")
