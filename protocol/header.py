@@ -181,6 +181,8 @@ def parse_header(body: bytes) -> Header:
     preview_size = 0
     if flags & _FLAG_PREVIEW:
         preview_size, pos = _varint(body, pos, MAX_MODEL)
+        if not preview_size:  # written only when there is one: the same header would be written otherwise
+            raise BitstreamError("stream header announces a preview of 0 bytes")
     basis: np.ndarray | None = None
     if flags & _FLAG_SHIPPED:
         index, table = _byte(body, pos), shipped()

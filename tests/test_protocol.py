@@ -345,6 +345,8 @@ def test_a_preview_must_be_part_of_the_model():
     at = body.index(varint(100) + varint(60)) + 1  # the preview's size, made the model's
     with pytest.raises(BitstreamError, match="out of range"):
         StreamDecoder().feed(build(HEADER, body[:at] + varint(100) + body[at + 1:]))
+    with pytest.raises(BitstreamError, match="a preview of 0 bytes"):
+        StreamDecoder().feed(build(HEADER, body[:at] + varint(0) + body[at + 1:]))
 
 
 @pytest.mark.parametrize("data, message", [
