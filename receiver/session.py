@@ -155,8 +155,8 @@ class ReceiveSession:
 
     def _model(self, event: Model) -> None:
         """The stream's face model, drawn from the next frame on unless the user gave theirs; a
-        preview only until then."""
-        if self._given is not None or self.face_kind == "stream" or (event.preview and self.face_kind == "preview"):
+        preview only until then (the decoder hands each over once)."""
+        if self._given is not None:
             return
         if event.preview:  # only a first look: one that cannot be read leaves the generic face
             try:
