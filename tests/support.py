@@ -28,7 +28,15 @@ from facedeform.codec.face_file.format import (
 from facedeform.codec.model.face_model import ReferencePicture, load_base_face, mouth_vertices
 from facedeform.codec.render.picture import Placement
 from facedeform.common.parameters import PAPER_PARAMS
-from facedeform.protocol.stream import Datagrams, Header, PacketEncoder, StreamDecoder, StreamEncoder, steps_for
+from facedeform.protocol.stream import (
+    Datagrams,
+    Header,
+    PacketEncoder,
+    StreamDecoder,
+    StreamEncoder,
+    frame_bytes,
+    steps_for,
+)
 from facedeform.receiver.cli import main
 from facedeform.sender import picture_layer
 
@@ -291,3 +299,18 @@ def sender_pictures():
         yield pictures
     finally:
         picture_layer.PictureLayer.step = original
+
+
+def sent_per_frame(session) -> tuple[list[bytes], np.ndarray, list[list[bytes]]]:
+    """A SendSession run to its end: (the stream's chunks, the header's first; the bits of each frame's
+    packets after the header, the end mark's counted with the last frame; the packets of each chunk)."""
+    chunks, bits, lists = [], [], []
+    for packets in session.packets():
+        if not packets:
+            continue
+        chunks.append(frame_bytes(packets, session.sealed))
+        lists.append(packets)
+        if len(chunks) > 1:
+            bits += [0] * (session.frame_count - len(bits))
+            bits[-1] += 8 * len(chunks[-1])
+    return chunks, np.array(bits), lists

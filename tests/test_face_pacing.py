@@ -8,12 +8,12 @@ import pytest
 import facedeform
 from facedeform.codec.face_file.format import decode_face, preview_face
 from facedeform.common.errors import BitstreamError, InputError
-from facedeform.protocol.stream import Frame, Model, StreamDecoder, frame_bytes
+from facedeform.protocol.stream import Frame, Model, StreamDecoder
 from facedeform.receiver.session import ReceiveSession
 from facedeform.sender.config import SendConfig
 from facedeform.sender.session import SendSession
 from facedeform.sender.sources import LoopedSource
-from tests.support import CLIP, RECV, SEND, run, sender_pictures
+from tests.support import CLIP, RECV, SEND, run, sender_pictures, sent_per_frame
 
 RATE = 30.0  # kbit/s: the sample's face (about 12.5 KB) is through in about 4 of the call's 12 s
 SECONDS = 12.0
@@ -26,14 +26,9 @@ def paced(face):
     with sender_pictures() as pictures:
         session = SendSession(LoopedSource(str(CLIP), SECONDS), SendConfig(bitrate=RATE * 1000, paced_face=True),
                               face=face)
-        chunks, bits = [], []
-        for packets in session.packets():
-            chunks.append(frame_bytes(packets, session.sealed))
-            if len(chunks) > 1:
-                bits += [0] * (session.frame_count - len(bits))
-                bits[-1] += 8 * len(chunks[-1])
+        chunks, bits, _ = sent_per_frame(session)
         session.close()
-    return chunks, np.array(bits), pictures
+    return chunks, bits, pictures
 
 
 def faces_drawn(chunks: list[bytes], held=None) -> list[str]:

@@ -14,7 +14,7 @@ from facedeform.sender import picture_layer
 from facedeform.sender.config import SendConfig
 from facedeform.sender.picture_layer import layer_video_size
 from facedeform.sender.session import SendSession
-from tests.support import CLIP, sender_pictures
+from tests.support import CLIP, sender_pictures, sent_per_frame
 
 RATE = 10.0  # kbit/s
 
@@ -25,18 +25,9 @@ def call(face):
     packets of each chunk) at RATE."""
     with sender_pictures() as pictures:
         session = SendSession(str(CLIP), SendConfig(bitrate=RATE * 1000, embed_face=False), face=face)
-        chunks, bits, sent, lists = [], [], 0, []
-        for packets in session.packets():
-            if packets:
-                chunks.append(frame_bytes(packets, session.sealed))
-                lists.append(packets)
-            if len(chunks) > 1:  # per frame, after the header
-                total = 8 * (sum(map(len, chunks)) - len(chunks[0]))
-                bits += [0] * (session.frame_count - len(bits))
-                bits[-1] += total - sent
-                sent = total
+        chunks, bits, lists = sent_per_frame(session)
     assert session.stats()["picture_packets"] > 0
-    return chunks, pictures, np.array(bits), lists
+    return chunks, pictures, bits, lists
 
 
 def test_the_video_is_as_large_as_its_bits_pay_for():
