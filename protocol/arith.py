@@ -189,6 +189,44 @@ def decode_run(data: bytes, count: int, model: AdaptiveBit) -> tuple[np.ndarray,
         return None
 
 
+#: :func:`encode_integers`' magnitude classes: |v| - 1 has 0 to CLASSES - 1 binary digits.
+CLASSES = 17
+LARGEST = 1 << (CLASSES - 1)  # the largest magnitude coded
+_ZERO, _SIGN, _CLASS = 0, 1, 2  # a group's models: whether 0, the sign, the class in unary, then each digit
+_MODELS = _CLASS + 2 * CLASSES - 1
+
+
+def encode_integers(values: np.ndarray, groups: np.ndarray, count: int) -> bytes:
+    """The code of integers ``values`` (|v| <= LARGEST), each in its group of ``groups`` (0 to
+    ``count`` - 1), then :meth:`Encoder.end`: per integer whether it is 0, its sign, the number of
+    binary digits of its magnitude less one in unary (an Elias-gamma code), then those digits below
+    the leading one, each bit under its group's adaptive model for that place (a face's preview
+    mesh, in steps 8 times the file's, learns that its last three digits are 0).
+
+    Why not LZMA for a face file's mesh and basis: they are small integers, near independent once
+    predicted from their neighbours, and a byte-wise dictionary coder took a third more bytes for
+    them than this code does (docs/face_file.md)."""
+    values = np.asarray(values, np.int64)
+    if values.size and np.abs(values).max() > LARGEST:
+        raise ValueError(f"integers to code lie within +-{LARGEST}")
+    n0 = np.zeros((count, _MODELS), np.int64)
+    out = np.zeros(2 * (2 + CLASSES + 15) * values.size + 8, np.uint8)  # bits of 2 bytes out at most each
+    written, low, span, shift = _encode_integers(values, np.asarray(groups, np.int64), n0, n0.copy(), out)
+    start = int.from_bytes(out[:written].tobytes(), "big") << 32 | low
+    return _self_delimiting_end(start, start + span, shift)
+
+
+def decode_integers(data: bytes, groups: np.ndarray, count: int) -> np.ndarray:
+    """The integers of :func:`encode_integers` (one per entry of ``groups``) from ``data``, read as
+    zeros past its end: bytes that are not such a code give integers all the same, within +-LARGEST,
+    in time bounded by their number."""
+    n0 = np.zeros((count, _MODELS), np.int64)
+    groups = np.asarray(groups, np.int64)
+    values = np.empty(groups.size, np.int64)
+    _decode_integers(np.frombuffer(data, np.uint8), groups, n0, n0.copy(), values)
+    return values
+
+
 @njit(cache=True)
 def _counted(bit, n0, n1):  # pragma: no cover - compiled
     """AdaptiveBit.update's counts."""
@@ -202,31 +240,19 @@ def _counted(bit, n0, n1):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def _p0(n0, n1):  # pragma: no cover - compiled
+    """AdaptiveBit.p0 of counts n0, n1."""
+    return ((2 * n0 + 1) << PROB_BITS) // (2 * (n0 + n1) + 2)
+
+
+@njit(cache=True)
 def _encode(bits, n0, n1, out):  # pragma: no cover - compiled
     """Encoder.bit over ``bits`` from an empty Encoder: the interval's start is the bytes written to
     ``out`` then ``low`` (under 2**32), as (bytes written, low, range, shift, n0, n1)."""
     low, span, shift, written = np.int64(0), np.int64(1) << 32, 32, 0
     for bit in bits:
-        split = (span * (((2 * n0 + 1) << PROB_BITS) // (2 * (n0 + n1) + 2))) >> PROB_BITS
-        if bit:
-            low += split
-            span -= split
-        else:
-            span = split
+        low, span, shift, written = _put(bit, _p0(n0, n1), low, span, shift, written, out)
         n0, n1 = _counted(bit, n0, n1)
-        if low >> 32:  # a carry into the bytes written: the interval never passes the code's end
-            low -= np.int64(1) << 32
-            i = written - 1
-            while out[i] == 255:
-                out[i] = 0
-                i -= 1
-            out[i] += 1
-        while span < _MIN_RANGE:
-            out[written] = low >> 24
-            written += 1
-            low = (low & 0xFFFFFF) << 8
-            span <<= 8
-            shift += 8
     return written, low, span, shift, n0, n1
 
 
@@ -239,18 +265,120 @@ def _decode(data, count, n0, n1, bits):  # pragma: no cover - compiled
         code = code << 8 | (data[read] if read < data.size else 0)
         read += 1
     for k in range(count):
-        split = (span * (((2 * n0 + 1) << PROB_BITS) // (2 * (n0 + n1) + 2))) >> PROB_BITS
-        bit = code >= split
-        if bit:
-            code -= split
-            span -= split
-        else:
-            span = split
+        bit, code, span, shift, read = _get(_p0(n0, n1), code, span, shift, read, data)
         bits[k] = bit
         n0, n1 = _counted(bit, n0, n1)
-        while span < _MIN_RANGE:
-            code = code << 8 | (data[read] if read < data.size else 0)
-            read += 1
-            span <<= 8
-            shift += 8
     return read, code, span, shift, n0, n1
+
+
+@njit(cache=True)
+def _put(bit, p0, low, span, shift, written, out):  # pragma: no cover - compiled
+    """One bit at P(0) = p0 into the interval whose start is the bytes written to ``out`` then ``low``:
+    (low, span, shift, written) after it."""
+    split = (span * p0) >> PROB_BITS
+    if bit:
+        low += split
+        span -= split
+    else:
+        span = split
+    if low >> 32:  # a carry into the bytes written: the interval never passes the code's end
+        low -= np.int64(1) << 32
+        i = written - 1
+        while out[i] == 255:
+            out[i] = 0
+            i -= 1
+        out[i] += 1
+    while span < _MIN_RANGE:
+        out[written] = low >> 24
+        written += 1
+        low = (low & 0xFFFFFF) << 8
+        span <<= 8
+        shift += 8
+    return low, span, shift, written
+
+
+@njit(cache=True)
+def _put_modelled(bit, n0, n1, g, m, low, span, shift, written, out):  # pragma: no cover - compiled
+    """_put under model m of group g (counts n0, n1, updated)."""
+    state = _put(bit, _p0(n0[g, m], n1[g, m]), low, span, shift, written, out)
+    n0[g, m], n1[g, m] = _counted(bit, n0[g, m], n1[g, m])
+    return state
+
+
+@njit(cache=True)
+def _encode_integers(values, groups, n0, n1, out):  # pragma: no cover - compiled
+    """encode_integers' bits from an empty Encoder, as _encode: (bytes written, low, range, shift)."""
+    low, span, shift, written = np.int64(0), np.int64(1) << 32, 32, 0
+    for k in range(values.size):
+        v, g = values[k], groups[k]
+        low, span, shift, written = _put_modelled(v != 0, n0, n1, g, _ZERO, low, span, shift, written, out)
+        if v == 0:
+            continue
+        low, span, shift, written = _put_modelled(v < 0, n0, n1, g, _SIGN, low, span, shift, written, out)
+        rest = abs(v) - 1
+        digits = 0
+        while rest >> digits:
+            digits += 1
+        for i in range(digits):
+            low, span, shift, written = _put_modelled(1, n0, n1, g, _CLASS + i, low, span, shift, written, out)
+        if digits < CLASSES - 1:
+            low, span, shift, written = _put_modelled(0, n0, n1, g, _CLASS + digits, low, span, shift, written, out)
+        for i in range(digits - 2, -1, -1):
+            low, span, shift, written = _put_modelled((rest >> i) & 1, n0, n1, g, _CLASS + CLASSES + i, low, span,
+                                                      shift, written, out)
+    return written, low, span, shift
+
+
+@njit(cache=True)
+def _get(p0, code, span, shift, read, data):  # pragma: no cover - compiled
+    """One bit at P(0) = p0 from ``data``, read as zeros past its end, ``code`` its read bytes' value less
+    the interval's start: (bit, code, span, shift, read) after it."""
+    split = (span * p0) >> PROB_BITS
+    bit = code >= split
+    if bit:
+        code -= split
+        span -= split
+    else:
+        span = split
+    while span < _MIN_RANGE:
+        code = code << 8 | (data[read] if read < data.size else 0)
+        read += 1
+        span <<= 8
+        shift += 8
+    return bit, code, span, shift, read
+
+
+@njit(cache=True)
+def _get_modelled(n0, n1, g, m, code, span, shift, read, data):  # pragma: no cover - compiled
+    """_get under model m of group g (counts n0, n1, updated)."""
+    bit, code, span, shift, read = _get(_p0(n0[g, m], n1[g, m]), code, span, shift, read, data)
+    n0[g, m], n1[g, m] = _counted(bit, n0[g, m], n1[g, m])
+    return bit, code, span, shift, read
+
+
+@njit(cache=True)
+def _decode_integers(data, groups, n0, n1, values):  # pragma: no cover - compiled
+    """_encode_integers' integers into ``values``, the data read as zeros past its end."""
+    code, span, shift, read = np.int64(0), np.int64(1) << 32, 32, 0
+    for _ in range(4):
+        code = code << 8 | (data[read] if read < data.size else 0)
+        read += 1
+    for k in range(values.size):
+        g = groups[k]
+        nonzero, code, span, shift, read = _get_modelled(n0, n1, g, _ZERO, code, span, shift, read, data)
+        if not nonzero:
+            values[k] = 0
+            continue
+        negative, code, span, shift, read = _get_modelled(n0, n1, g, _SIGN, code, span, shift, read, data)
+        digits = 0
+        while digits < CLASSES - 1:
+            more, code, span, shift, read = _get_modelled(n0, n1, g, _CLASS + digits, code, span, shift, read, data)
+            if not more:
+                break
+            digits += 1
+        rest = np.int64(1) << (digits - 1) if digits else np.int64(0)
+        for i in range(digits - 2, -1, -1):
+            bit, code, span, shift, read = _get_modelled(n0, n1, g, _CLASS + CLASSES + i, code, span, shift, read, data)
+            rest |= np.int64(bit) << i
+        values[k] = -(rest + 1) if negative else rest + 1
+    return read

@@ -46,7 +46,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "eyes (the deepest blink, eyes open again within half a second) are learned from "
                         "(default 60)")
     p.add_argument("--no-picture", action="store_true",
-                   help="leave out the reference picture (the whole neutral frame, WebP; docs/picture.md): "
+                   help="leave out the reference picture (the whole neutral frame, AV1; docs/picture.md): "
                         "the receiver then draws the face alone")
     p.add_argument("--key", metavar="FILE",
                    help="encrypt the face model at rest with this key (fd-keygen); fd-send and fd-recv open it "
@@ -93,22 +93,21 @@ def _run(args) -> int:
                     f", no motion basis ({made.motion_frames} frames with a face; a pattern needs "
                     f"{FRAMES_PER_PATTERN})")
         print(f"fd-enroll: face model {ident[:12]} from frame {made.frame} (lip gap {made.lip_gap:.3f}, head turned "
-              f"{made.head_turn:.1f} degrees){note}{_picture_note(made.face.model.picture)}, {len(made.face.data)} "
+              f"{made.head_turn:.1f} degrees){note}{_picture_note(made.face.data)}, {len(made.face.data)} "
               f"bytes in {args.output}{' (encrypted)' if key else ''}", file=sys.stderr)
     return 0
 
 
-def _picture_note(picture) -> str:
-    if picture is None:
-        return ", no reference picture"
-    from facedeform.codec.face_file.format import encode_picture
+def _picture_note(data: bytes) -> str:
+    from facedeform.codec.face_file.format import described
 
-    height, width = picture.image.shape[:2]
-    mouth = "no open mouth" if picture.mouth is None else \
-        f"open mouth {len(encode_picture(picture.mouth))} bytes"
-    eyes = "no blink seen" if picture.shut_eyes is None else \
-        f"shut eyes {len(encode_picture(picture.shut_eyes))} bytes"
-    return f", reference picture {width}x{height} ({len(encode_picture(picture.image))} bytes, {mouth}, {eyes})"
+    info = described(data)
+    if "picture" not in info:
+        return ", no reference picture"
+    size, width, height = info["picture"]
+    mouth = f"open mouth {info['mouth'][0]} bytes" if "mouth" in info else "no open mouth"
+    eyes = f"shut eyes {info['shut_eyes'][0]} bytes" if "shut_eyes" in info else "no blink seen"
+    return f", reference picture {width}x{height} ({size} bytes, {mouth}, {eyes})"
 
 
 if __name__ == "__main__":

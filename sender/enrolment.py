@@ -99,7 +99,7 @@ def enroll_face(video, frame: int | None = None, seconds: float = 2.0, motion: i
     else:
         texture = texture_from_frame(rgb, found.landmarks[:, :2], base.uv, base.faces, texture_size)
     first = decode_face(personal_face(found.aligned, texture, base, picture=ref))
-    basis, rings, shut, frames = _learn(video, first, found.index, motion, motion_over, motion_seconds, on_frame)
+    basis, rings, shut, frames = _learn(video, first, rgb, found.index, motion, motion_over, motion_seconds, on_frame)
     if rings is not None and ref is not None:
         ref = replace(ref, ring_weights=rings)
     if ref is not None and shut is not None and (eyes := shut.laid_on(first, found.landmarks)) is not None:
@@ -284,14 +284,18 @@ def _posed(landmarks: np.ndarray, face: BaseFace) -> tuple[np.ndarray, Pose, flo
     return points, pose, float(np.linalg.norm(pose.head_rotation_vector()))
 
 
-def _learn(video, face: BaseFace, neutral: int, patterns: int, over: str, seconds: float, on_frame):
+def _learn(video, face: BaseFace, seen: np.ndarray, neutral: int, patterns: int, over: str, seconds: float,
+           on_frame):
     """(the person's MotionBasis or None, their ring weights and ShutEyes or None, frames with a face
     seen), from one pass over the clip's first ``seconds``: the motion basis when ``patterns`` asks for
     one (sender/motion.py), the ring weights (sender/motion_global.RingWeights) and the blinks when
-    ``face`` has a reference picture, each frame tracked once for all."""
+    ``face`` has a reference picture, each frame tracked once for all. The ring weights are measured
+    on the picture as the camera gave it, ``seen`` (RGB), not as the face file codes it: on
+    tpsmm_driving's crop, measured on its AV1 copy they cost the whole picture 0.09 dB more
+    (docs/face_file.md)."""
     from facedeform.sender.tracker import FaceTracker
 
-    rings = None if face.picture is None else RingWeights(face)
+    rings = None if face.picture is None else RingWeights(replace(face, picture=replace(face.picture, image=seen)))
     if not patterns and rings is None:
         return None, None, None, 0
     source = open_source(str(video))

@@ -1,9 +1,9 @@
 """The face model sent beside the call's frames, within its --bitrate (``fd-send --paced-face``).
 
-Sent before the first frame, a 256x256 face file of 10-18 KB held the first whole picture back by
-25-29 s at 4 kbit/s (benchmarks/bench_call_start.py). Paced, the first frame goes at once and the
-receiver draws the generic face; a preview of the face (codec/face_file/format.preview_face, 2.4-3.6
-KB) and then the face itself follow in chunks as the rate leaves room, each drawn from the frame
+Sent before the first frame, a 256x256 face file of 10-18 KB (version 9) held the first whole picture
+back by 25-29 s at 4 kbit/s (benchmarks/bench_call_start.py). Paced, the first frame goes at once and
+the receiver draws the generic face; a preview of the face (codec/face_file/format.preview_face,
+1.3-2.3 KB) and then the face itself follow in chunks as the rate leaves room, each drawn from the frame
 after it completes. The picture layer, whose sender must draw what the receiver draws, starts once
 the face is through and the last 2 seconds carried none of it (its first key then finds the rate's
 window as at a call's start). On three dev clips' crops at 4 kbit/s the preview was drawn after

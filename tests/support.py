@@ -21,6 +21,8 @@ from facedeform.codec.face_file.format import (
     _PACKING,
     PATTERN_SCALE,
     VERTEX_STEPS,
+    _differences,
+    _stored_order,
     decode_face,
     personal_face,
     save_face_file,
@@ -202,12 +204,19 @@ def a_person(seed=0):
     return neutral, texture
 
 def as_version(data: bytes, version: int) -> bytes:
-    """A current face file rewritten as an older version (1-7) would have held it: the motion basis's
+    """A current face file rewritten as an older version (1-9) would have held it: before version 10
+    the vertices as <i2 steps of 1/VERTEX_STEPS, the motion basis's vertices as <u2 and its steps'
+    differences modulo 256, all packed (version 9 with shut eyes, 8 without); the motion basis's
     patterns as <i1 of 127 steps each before version 8; the picture's
     numbers (projection, ring weights, open mouth's points) in the JSON before version 7; vertices,
     uv and triangles written out in full before version 6; the motion basis's patterns as <f2 in
     version 4; before it the feature points written out, the patterns as <f4, no ring weights;
     before 3, no picture; before 2, no motion basis."""
+    if data[6] == 10:
+        data = _as_version_9(data)
+    if version >= 8:
+        assert version == data[6], "a face with shut eyes was version 9, one without version 8"
+        return data
     n = int.from_bytes(data[8:12], "little")
     info = json.loads(data[12:12 + n])
     k, c, _ = info.get("motion", (0, 0, ""))
@@ -260,6 +269,32 @@ def as_version(data: bytes, version: int) -> bytes:
     assert version >= 2 or not k
     text = json.dumps(info).encode()
     return data[:6] + bytes([version, 0]) + len(text).to_bytes(4, "little") + text + mesh + motion + images
+
+
+def _as_version_9(data: bytes) -> bytes:
+    """A version 10 face file as version 8 or 9 held it."""
+    n = int.from_bytes(data[8:12], "little")
+    info = json.loads(data[12:12 + n])
+    packed, coded = info.pop("packed"), info.pop("coded")
+    raw = lzma.decompress(data[12 + n:12 + n + packed], lzma.FORMAT_RAW, filters=_PACKING)
+    face = decode_face(data)
+    own = (0 if info.get("uv") == "base" else 8 * info["vertices"]) + (0 if info.get("topology") == "base"
+                                                                       else 6 * info["faces"])
+    motion = b""
+    if face.motion is not None:
+        steps = face.motion.steps
+        values = np.rint(face.motion.vectors * steps[:, None, None]).astype(np.int64)
+        differences = _differences(values, _stored_order(face.motion.vertices, face.faces)) % 256
+        motion = face.motion.vertices.astype("<u2").tobytes() + steps.astype("u1").tobytes() \
+            + differences.astype("u1").tobytes()
+    vertices = np.rint((face.vertices - BASE.vertices) * VERTEX_STEPS).astype("<i2").tobytes()
+    c = info.get("motion", (0, 0))[1]
+    repacked = lzma.compress(vertices + raw[:own] + motion + raw[own + c:], lzma.FORMAT_RAW, filters=_PACKING)
+    info["packed"] = len(repacked)
+    text = json.dumps(info).encode()
+    version = 9 if "shut_eyes" in info else 8
+    return data[:6] + bytes([version, 0]) + len(text).to_bytes(4, "little") + text + repacked \
+        + data[12 + n + packed + coded:]
 
 
 def with_info(data: bytes, **changes) -> bytes:

@@ -5,7 +5,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from facedeform.protocol.arith import AdaptiveBit, Decoder, Encoder, Incomplete, decode_run, encode_run
+from facedeform.protocol.arith import (
+    LARGEST,
+    AdaptiveBit,
+    Decoder,
+    Encoder,
+    Incomplete,
+    decode_integers,
+    decode_run,
+    encode_integers,
+    encode_run,
+)
 
 
 def code(bits: list[int], models: list[int], first_byte_below: int = 256) -> Encoder:
@@ -72,3 +82,32 @@ def test_a_compiled_run_codes_and_decodes_as_the_coder_does(run, after, cut):
         assert (None if got is None else (got[0].tolist(), got[1])) == want
         if want is not None:
             assert (ran.n0, ran.n1) == (exact.n0, exact.n1)
+
+
+INTEGERS = st.lists(st.tuples(st.integers(-LARGEST, LARGEST) | st.integers(-3, 3), st.integers(0, 4)), max_size=400)
+
+
+@settings(max_examples=200, deadline=None)
+@given(INTEGERS, st.binary(max_size=6))
+def test_integers_decode_exactly_whatever_follows_them(pairs, after):
+    values, groups = np.array([v for v, _ in pairs], np.int64), np.array([g for _, g in pairs], np.int64)
+    data = encode_integers(values, groups, 5)
+    np.testing.assert_array_equal(decode_integers(data + after, groups, 5), values)
+
+
+def test_integers_take_near_their_entropy_and_larger_ones_are_refused():
+    values = np.rint(np.random.default_rng(0).laplace(0, 2, 10_000)).astype(np.int64)
+    _, counts = np.unique(values, return_counts=True)
+    entropy = -(counts * np.log2(counts / len(values))).sum()  # bits, 3.46 each
+    group = np.zeros(len(values), np.int64)
+    assert 8 * len(encode_integers(values, group, 1)) < 1.02 * entropy
+    assert 8 * len(encode_integers(8 * values, group, 1)) < 1.04 * entropy  # three digits learned to be 0
+    with pytest.raises(ValueError):
+        encode_integers(np.array([LARGEST + 1]), np.zeros(1, np.int64), 1)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.binary(max_size=300), st.integers(0, 2_000))
+def test_any_bytes_decode_to_integers_within_bounds(data, count):
+    values = decode_integers(data, np.arange(count) % 3, 3)
+    assert len(values) == count and (count == 0 or np.abs(values).max() <= LARGEST)

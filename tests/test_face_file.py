@@ -10,9 +10,10 @@ import pytest
 
 from facedeform.codec.face_file.format import (
     _PACKING,
-    VERTEX_STEPS,
+    MESH_STEPS,
     Face,
     decode_face,
+    described,
     encode_face,
     personal_face,
     save_face_file,
@@ -58,7 +59,7 @@ def test_vertices_are_normalised_like_the_base_face():
     neutral, _ = a_person()
     face = decode_face(personal_face(neutral))
     lo, hi = face.vertices.min(axis=0), face.vertices.max(axis=0)
-    step = 1 / VERTEX_STEPS  # what the file keeps of a coordinate
+    step = 1 / MESH_STEPS  # what the file keeps of a coordinate
     np.testing.assert_allclose(face.vertices[10, 1] - face.vertices[152, 1], 1.0, atol=step)
     np.testing.assert_allclose((lo + hi) / 2, 0.0, atol=step)
     assert not np.allclose(face.vertices, BASE.vertices, atol=1e-3)
@@ -89,7 +90,7 @@ def _corrupt(data: bytes, where: int) -> bytes:
 @pytest.mark.parametrize("mangle, message", [
     (lambda d: b"", "no FDFACE mark"),
     (lambda d: b"GIF89a" + d[6:], "no FDFACE mark"),
-    (lambda d: d[:6] + bytes([10]) + d[7:], "version 10"),
+    (lambda d: d[:6] + bytes([11]) + d[7:], "version 11"),
     (lambda d: d[:-10], "length does not match"),
     (lambda d: _corrupt(d, 20), "unreadable description"),
     (lambda d: d.replace(b"\xff\xd8\xff", b"\0\0\0"), "texture is not"),
@@ -116,7 +117,7 @@ def test_the_reference_picture_round_trips():
     face = decode_face(personal_face(neutral, texture, picture=picture))
     np.testing.assert_array_equal(face.picture.projection, picture.projection)
     assert face.picture.image.shape == (80, 96, 3)
-    assert np.abs(face.picture.image.astype(int) - picture.image).mean() < 4  # WebP: close, not exact
+    assert np.abs(face.picture.image.astype(int) - picture.image).mean() < 4  # AV1: close, not exact
     lossless = decode_face(encode_face(face, picture_format=".png"))
     np.testing.assert_array_equal(lossless.picture.image, face.picture.image)
     assert decode_face(personal_face(neutral, texture)).picture is None
@@ -130,7 +131,7 @@ def test_files_of_older_versions_are_still_read():
     person = decode_face(personal_face(neutral, texture, motion=motion, picture=a_picture()))
     data = encode_face(replace(person, picture=replace(person.picture, ring_weights=np.full(144, 0.5))))
     now = decode_face(data)
-    for version in (1, 2, 3, 4, 5, 6, 7):
+    for version in (1, 2, 3, 4, 5, 6, 7, 8):
         kept = data if version > 1 else personal_face(neutral, texture)
         old = decode_face(as_version(kept, version))
         np.testing.assert_allclose(old.vertices, now.vertices, atol=1e-6)  # as <f4 held them
@@ -238,8 +239,23 @@ def test_a_picture_of_another_size_than_declared_is_refused(size, message):
 def test_a_damaged_picture_is_refused():
     neutral, texture = a_person()
     data = personal_face(neutral, texture, picture=a_picture())
-    with pytest.raises(InputError, match="reference picture is not"):
-        decode_face(data.replace(b"RIFF", b"JUNK"))
+    at = len(data) - described(data)["picture"][0]
+    for damaged in (_corrupt(data, at), data[:at] + bytes(len(data) - at), data[:at + 4] + bytes(len(data) - at - 4)):
+        with pytest.raises(InputError, match="reference picture is not"):
+            decode_face(damaged)
+
+
+def test_an_av1_picture_larger_than_declared_is_refused_before_it_is_drawn():
+    """AV1 has no header that image_size reads: the decoder is told the declared size's pixels and
+    refuses a larger frame before allocating it."""
+    neutral, texture = a_person()
+    small = personal_face(neutral, texture, picture=a_picture())
+    large = personal_face(neutral, texture, picture=a_picture(1024, 1024))
+    picture = large[len(large) - described(large)["picture"][0]:]
+    at = len(small) - described(small)["picture"][0]
+    hostile = with_info(small[:at] + picture, picture=[len(picture), 96, 80])
+    with pytest.raises(InputError, match="reference picture is not a 96x80"):
+        decode_face(hostile)
 
 
 def test_the_open_mouth_round_trips():
@@ -268,16 +284,16 @@ def test_hostile_open_mouth_fields_are_refused_in_one_line(changes, message):
     assert "\n" not in str(info.value)
 
 
-def test_the_shut_eyes_round_trip_in_version_9_and_a_face_without_them_stays_version_8():
+def test_the_shut_eyes_round_trip_and_are_read_from_version_9():
     neutral, texture = a_person()
     person = replace(decode_face(personal_face(neutral, texture)), picture=a_picture_with_shut_eyes())
     data = encode_face(person, picture_format=".png")
-    face = decode_face(data)
-    assert data[6] == 9 and face.picture.shut_eyes_at == (20, 30)
-    np.testing.assert_array_equal(face.picture.shut_eyes, person.picture.shut_eyes)
-    np.testing.assert_array_equal(face.picture.mouth, person.picture.mouth)
+    for face in (decode_face(data), decode_face(as_version(data, 9))):
+        assert face.picture.shut_eyes_at == (20, 30)
+        np.testing.assert_array_equal(face.picture.shut_eyes, person.picture.shut_eyes)
+        np.testing.assert_array_equal(face.picture.mouth, person.picture.mouth)
     without = encode_face(replace(person, picture=replace(person.picture, shut_eyes=None, shut_eyes_at=None)))
-    assert without[6] == 8 and decode_face(without).picture.shut_eyes is None
+    assert decode_face(without).picture.shut_eyes is None
 
 
 @pytest.mark.parametrize("changes, message", [
@@ -311,9 +327,22 @@ def test_version_6_keeps_only_what_a_receiver_cannot_derive():
     face = decode_face(data)
     np.testing.assert_array_equal(face.faces, BASE.faces)
     np.testing.assert_array_equal(face.uv, BASE.uv)
-    assert np.abs(face.vertices - normalise(neutral)).max() <= 0.5 / VERTEX_STEPS + 1e-12
+    assert np.abs(face.vertices - normalise(neutral)).max() <= 0.5 / MESH_STEPS + 1e-12
     lossless = encode_face(face, picture_format=".png")
     assert encode_face(decode_face(lossless), picture_format=".png") == lossless  # what it stores, exactly
+
+
+def test_a_mesh_in_coarser_steps_round_trips_and_hostile_steps_are_refused():
+    """A preview's mesh (preview_face) is stored in its own steps, and says so."""
+    neutral, _ = a_person()
+    face = decode_face(personal_face(neutral, None, picture=a_picture()))
+    coarse = encode_face(face, mesh_steps=256)
+    assert np.abs(decode_face(coarse).vertices - face.vertices).max() <= 0.5 / 256 + 1e-12
+    assert len(coarse) < len(encode_face(face)) - 300
+    for steps in (0, 15, 1 << 17, "x"):
+        with pytest.raises(InputError) as info:
+            decode_face(with_info(coarse, mesh=steps), "me.fdface")
+        assert "\n" not in str(info.value)
 
 
 def test_a_face_of_its_own_topology_and_uv_stores_them():
@@ -344,6 +373,27 @@ def test_a_damaged_or_hostile_packed_mesh_is_one_line(mangle, message):
     with pytest.raises(InputError, match=message) as info:
         decode_face(mangle(data, *_packed_span(data)), "me.fdface")
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_a_coded_mesh_and_basis_of_any_bytes_is_a_face_or_one_line(seed):
+    """Arithmetic-coded integers have no invalid code: any bytes decode, in bounded time, to a mesh and
+    basis that are either within their bounds or refused in one line."""
+    from facedeform.codec.model.motion_basis import MotionBasis
+
+    neutral, texture = a_person()
+    motion = MotionBasis(np.arange(468), np.random.default_rng(3).normal(0, 0.1, (2, 468, 3)))
+    data = personal_face(neutral, texture, motion=motion)
+    at, size = sum(_packed_span(data)), described(data)["coded"]
+    junk = np.random.default_rng(seed).integers(0, 256, size, dtype=np.uint8).tobytes()
+    try:
+        face = decode_face(data[:at] + junk + data[at + size:], "me.fdface")
+    except InputError as error:
+        assert "\n" not in str(error) and str(error).startswith("me.fdface: ")
+    else:
+        assert np.all(np.abs(face.vertices) < 10) and np.all(np.abs(face.motion.vectors) <= 1)
+    with pytest.raises(InputError, match="length does not match"):
+        decode_face(with_info(data, coded=size + 1))
 
 
 def test_a_packed_mesh_is_never_inflated_past_its_declared_size():

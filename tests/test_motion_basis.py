@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from facedeform.codec.face_file.format import _PACKING, Face, decode_face, encode_face
+from facedeform.codec.face_file.format import _PACKING, Face, _groups, decode_face, described, encode_face
 from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import load_base_face
 from facedeform.codec.model.motion_basis import MotionBasis, learn_basis
@@ -25,6 +25,7 @@ from facedeform.common.parameters import (
     POSE_PARAMS,
     slots,
 )
+from facedeform.protocol.arith import decode_integers, encode_integers
 from facedeform.protocol.quantise import DEAD_ZONE
 from facedeform.sender.fit import ModelFit
 from facedeform.sender.motion import FRAMES_PER_PATTERN, learn_motion
@@ -89,12 +90,22 @@ def test_a_damaged_basis_is_refused():
     data = encode_face(_face_with_basis())
     with pytest.raises(InputError, match="motion basis"):
         decode_face(_damaged(as_version(data, 5)))
-    n = int.from_bytes(data[8:12], "little")
-    at, size = 12 + n, json.loads(data[12:12 + n])["packed"]
-    packed = lzma.compress(_damaged(lzma.decompress(data[at:at + size], lzma.FORMAT_RAW, filters=_PACKING)),
+    older = as_version(data, 8)  # the indices packed
+    n = int.from_bytes(older[8:12], "little")
+    at, size = 12 + n, json.loads(older[12:12 + n])["packed"]
+    packed = lzma.compress(_damaged(lzma.decompress(older[at:at + size], lzma.FORMAT_RAW, filters=_PACKING)),
                            lzma.FORMAT_RAW, filters=_PACKING)
     with pytest.raises(InputError, match="motion basis"):
-        decode_face(with_info(data[:at] + packed + data[at + size:], packed=len(packed)))
+        decode_face(with_info(older[:at] + packed + older[at + size:], packed=len(packed)))
+    info = described(data)  # version 10: the indices coded, each as its step from the one before
+    at, size = len(data) - info["coded"], info["coded"]
+    groups, count = _groups(info["vertices"], info["motion"][1], info["motion"][0])
+    values = decode_integers(data[at:at + size], groups, count)
+    for first in (9999 + 1, -5):
+        values[3 * info["vertices"]] = first
+        coded = encode_integers(values, groups, count)
+        with pytest.raises(InputError, match="motion basis"):
+            decode_face(with_info(data[:at] + coded, coded=len(coded)))
 
 
 def test_each_pattern_is_stored_as_finely_as_its_coefficients_need():
@@ -139,7 +150,20 @@ def test_a_basis_with_impossible_steps_is_refused(where, value):
         raw[start + where] = value
 
     with pytest.raises(InputError, match="motion basis out of range"):
-        decode_face(_with_motion_bytes(data, change))
+        decode_face(_with_motion_bytes(as_version(data, 8), change))
+    info = described(data)  # version 10: the step counts packed first, the differences coded
+    at, size = len(data) - info["coded"] - info["packed"], info["packed"]
+    raw = bytearray(lzma.decompress(data[at:at + size], lzma.FORMAT_RAW, filters=_PACKING))
+    groups, count = _groups(info["vertices"], 3, info["motion"][0])
+    values = decode_integers(data[at + size:], groups, count)
+    if where == 60:
+        raw[0] = value
+    else:
+        values[3 * info["vertices"] + info["motion"][0]] = value
+    packed = lzma.compress(bytes(raw), lzma.FORMAT_RAW, filters=_PACKING)
+    coded = encode_integers(values, groups, count)
+    with pytest.raises(InputError, match="motion basis out of range"):
+        decode_face(with_info(data[:at] + packed + coded, packed=len(packed), coded=len(coded)))
 
 
 def test_coefficients_move_exactly_the_basis_vertices():

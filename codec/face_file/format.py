@@ -52,6 +52,21 @@ pattern.
 Version 9 adds the person's shut eyes (``shut_eyes`` [bytes, width, height, x, y]: an image, as
 the picture, after the open mouth, and where its top-left pixel lies in the reference picture:
 codec/render/eyelids.py); a face without them is written as version 8, byte for byte as before.
+Version 10 codes the mesh and the motion basis as integers by an adaptive arithmetic code
+(protocol.arith.encode_integers) instead of LZMA, and the reference picture as AV1::
+
+    "FDFACE" | 10 | 0 | JSON length (u32) | JSON | LZMA (``packed``) of: [uv] [faces]
+        | the basis's steps u1 (c) | the picture's numbers (as version 7)
+    | arithmetic code (``coded`` bytes) of: each vertex's steps of 1/``mesh`` (in the JSON, MESH_STEPS
+        unless told) of the face's height from the generic face's,
+        less their guess from its neighbours stored before it (_stored_order over the mesh), (n, 3)
+        | the basis's vertices, each less the one before (from -1), (k) | the basis's differences as
+        version 8's, not taken modulo 256, (c, k, 3)
+    | texture | reference picture (AV1: a key frame's temporal unit without its delimiter) | open mouth
+    | shut eyes (WebP)
+
+On the nine dev clips' 256x256 faces the mesh and basis take 4.2-6.9 KB instead of 6.7-9.2, and the
+picture 31-42 % fewer bytes (docs/face_file.md).
 The face
 id is the sha256 of the whole file (``sha256sum face.fdface`` prints it): what
 the stream header names is exactly what the receiver holds, bit for bit.
@@ -90,18 +105,25 @@ from facedeform.codec.model.face_model import (
     normalise,
 )
 from facedeform.codec.model.motion_basis import MOST_STEPS, OVER, MotionBasis
+from facedeform.codec.render.frame_video import VideoDecoder, encode_still, even
 from facedeform.codec.render.picture import RINGS, Placement, outer_loop
 from facedeform.common.errors import InputError
 from facedeform.common.keys import derive
 from facedeform.common.limits import MAX_SIDE
 from facedeform.common.parameters import MAX_COMPONENTS
+from facedeform.protocol.arith import decode_integers, encode_integers
 
 MAGIC = b"FDFACE"
-VERSION = 8  # what a face is written as, unless it has shut eyes (SHUT_EYES_VERSION)
-SHUT_EYES_VERSION = 9
-READS = (1, 2, 3, 4, 5, 6, 7, 8, 9)
+VERSION = 10
+SHUT_EYES_VERSION = 9  # the first with the person's shut eyes
+CODED_VERSION = 10  # the first with the mesh and motion basis arithmetic-coded
+READS = (1, 2, 3, 4, 5, 6, 7, 8, 9, 10)
 #: Version 6's vertex coordinates: steps of the face's height, from the generic face's.
 VERTEX_STEPS = 8192
+#: Version 10's: 1/2048 of the face's height (a vertex off by at most half a step, a quarter pixel of a
+#: face 1,000 pixels tall): the mesh takes about 0.9 KB instead of 1.25 at 1/8192 (docs/face_file.md).
+MESH_STEPS = 2048
+MESH_STEPS_ALLOWED = (16, 1 << 16)  # what a file may say its mesh's steps are (JSON ``mesh``)
 #: Version 5-7's pattern coordinates: this many steps for 1.
 PATTERN_SCALE = 127
 MAX_FILE = 16 << 20  # the stream header's limit for an in-band model
@@ -111,18 +133,24 @@ MAX_TEXTURE_SIDE = 2048
 PICTURE_SIDES = (16, MAX_SIDE)  # pixels of a reference picture's width and height
 #: The face's height in a reference picture, over the picture's larger side: a face, not a speck or a blow-up.
 FACE_IN_PICTURE = (0.02, 2.0)
-#: How enrolment codes the reference picture (measured on 256x256 crops: docs/picture.md).
-PICTURE_FORMAT, PICTURE_QUALITY = ".webp", 80
-#: A preview face's (:func:`preview_face`) vertices in steps of this many VERTEX_STEPS, 1/256 of the
-#: face's height (a vertex off by at most 0.3 pixels of a 256x256 crop's face; the dev clips' previews
-#: 2.4-3.6 KB, 3.4-4.6 with every step), and its picture's WebP quality (0.6-1.5 KB, 28-34 dB).
-PREVIEW_VERTEX_STEPS = 32
-PREVIEW_QUALITY = 5
+#: How a face file codes its reference picture: AV1 at SVT-AV1's CRF 28 (on the dev clips' 256x256 crops 28-44 %
+#: fewer bytes than WebP 80, and the whole picture within 0.13 dB, most clips higher: docs/face_file.md) ...
+PICTURE_FORMAT = ".av1"
+#: ... and its open mouth and shut eyes, images of a few dozen pixels a side, where AV1's frame costs half
+#: as many bytes again as WebP's.
+PARTS_FORMAT = ".webp"
+#: Each image format's quality unless told (AV1: SVT-AV1's CRF, finer lower; PNG is lossless).
+QUALITY = {".av1": 28, ".webp": 80, ".jpg": 90, ".png": 0}
+#: A preview face's (:func:`preview_face`) vertices in steps of 1/256 of the face's height (a vertex off by
+#: at most 0.3 pixels of a 256x256 crop's face), and its picture's AV1 CRF.
+PREVIEW_MESH_STEPS = 256
+PREVIEW_QUALITY = 50
 SEALED = b"FDSEAL\x01"
 #: Version 6's packing: raw LZMA2 (no container: a hostile file cannot ask for a larger dictionary)
 #: with a dictionary larger than any file's mesh and basis (about 35 KB at most).
 _PACKING = [{"id": lzma.FILTER_LZMA2, "preset": 9 | lzma.PRESET_EXTREME, "dict_size": 1 << 16}]
 _PREFIX = struct.Struct("<6sBBI")
+_AV1_SEQUENCE = b"\x0a"  # an AV1 picture's first byte: its sequence header's OBU header
 
 
 def face_id(data: bytes) -> str:
@@ -131,9 +159,11 @@ def face_id(data: bytes) -> str:
 
 
 def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
-                picture_format: str = PICTURE_FORMAT, picture_quality: int = PICTURE_QUALITY) -> bytes:
+                picture_format: str | None = None, picture_quality: int = 0, mesh_steps: int = MESH_STEPS) -> bytes:
     """A face file's bytes; ``face.texture`` (RGB) goes in as ``texture_format`` (.jpg or .png),
-    ``face.picture``'s image as ``picture_format`` (.webp, .jpg or .png).
+    ``face.picture``'s images as ``picture_format`` (.av1, .webp, .jpg or .png) at ``picture_quality``
+    (0: the format's QUALITY), or by default the picture as PICTURE_FORMAT and its parts as PARTS_FORMAT;
+    the vertices in steps of 1/``mesh_steps`` of the face's height.
 
     The same face gives the same bytes (and id); a JPEG texture loaded and
     saved again is re-compressed and so gets a new id.
@@ -144,7 +174,8 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
     picture, numbers = b"", []  # the picture's numbers, packed after the motion basis
     if face.picture is not None:
         image = face.picture.image
-        picture = encode_picture(image, picture_format, picture_quality)
+        picture = _encode_image(image, picture_format or PICTURE_FORMAT, picture_quality, "reference picture")
+        parts = (picture_format or PARTS_FORMAT, picture_quality)
         info["picture"] = [len(picture), image.shape[1], image.shape[0]]
         numbers.append(np.ascontiguousarray(face.picture.projection, dtype="<f8").tobytes())
         if face.picture.ring_weights is not None:
@@ -153,7 +184,7 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
             numbers.append(rings.tobytes())
         if face.picture.mouth is not None:
             mouth = face.picture.mouth
-            data = encode_picture(mouth, picture_format, picture_quality)
+            data = _encode_image(mouth, *parts, "open mouth")
             info["mouth"] = [len(data), mouth.shape[1], mouth.shape[0]]
             points = np.ascontiguousarray(face.picture.mouth_points, dtype="<f4")
             info["mouth_points"] = len(points)
@@ -161,20 +192,22 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
             picture += data
         if face.picture.shut_eyes is not None and face.picture.shut_eyes_at is not None:
             shut = face.picture.shut_eyes
-            data = encode_picture(shut, picture_format, picture_quality)
+            data = _encode_image(shut, *parts, "shut eyes")
             info["shut_eyes"] = [len(data), shut.shape[1], shut.shape[0], *map(int, face.picture.shut_eyes_at)]
             picture += data
-    motion = b""
+    motion, basis = b"", np.zeros(0, np.int64)
     if face.motion is not None:
         info["motion"] = [len(face.motion.vertices), face.motion.components, face.motion.over]
         if np.abs(face.motion.vectors).max() > 1.0:
             raise ValueError("a motion basis's patterns move no vertex coordinate by more than 1 (learn_basis)")
-        motion = _encode_motion(face.motion, face.faces)
+        motion, basis = _encode_motion(face.motion, face.faces)
     base = _base()
-    steps = np.rint((face.vertices - base.vertices) * VERTEX_STEPS)
+    steps = np.rint((face.vertices - base.vertices) * mesh_steps).astype(np.int64)
     if np.abs(steps).max() > np.iinfo(np.int16).max:
-        raise ValueError("a face file's vertices lie within 4 face heights of the generic face's")
-    arrays = [np.ascontiguousarray(steps, dtype="<i2").tobytes()]
+        raise ValueError("a face file's vertices lie within 32767 of its steps of the generic face's")
+    if mesh_steps != MESH_STEPS:
+        info["mesh"] = mesh_steps
+    arrays = []
     if np.array_equal(face.uv.astype("<f4"), base.uv.astype("<f4")):  # as an older file stored them
         info["uv"] = "base"
     else:
@@ -185,30 +218,46 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
         arrays.append(np.ascontiguousarray(face.faces, dtype="<u2").tobytes())
     packed = lzma.compress(b"".join(arrays) + motion + b"".join(numbers), lzma.FORMAT_RAW, filters=_PACKING)
     info["packed"] = len(packed)
+    mesh = _differences(steps[None], _stored_order(np.arange(len(steps)), face.faces))[0]
+    k, c = (len(face.motion.vertices), face.motion.components) if face.motion is not None else (0, 0)
+    coded = encode_integers(np.concatenate([mesh.ravel(), basis]), *_groups(len(steps), c, k))
+    info["coded"] = len(coded)
     text = json.dumps(info, sort_keys=True, separators=(",", ":")).encode()
-    version = SHUT_EYES_VERSION if "shut_eyes" in info else VERSION
-    return b"".join([_PREFIX.pack(MAGIC, version, 0, len(text)), text, packed, texture, picture])
+    return b"".join([_PREFIX.pack(MAGIC, VERSION, 0, len(text)), text, packed, coded, texture, picture])
+
+
+def _groups(n: int, c: int, k: int) -> tuple[np.ndarray, int]:
+    """The groups of a version 10 file's coded integers (:func:`protocol.arith.encode_integers`): its n
+    vertices' (n, 3) differences by axis; its motion basis's k vertices, each as the step from the one
+    before (from -1); their (c, k, 3) differences by pattern and axis. And the groups' number."""
+    mesh = np.tile(np.arange(3), n)
+    basis = 4 + np.arange(3 * c).reshape(c, 1, 3).repeat(k, axis=1).ravel()
+    return np.concatenate([mesh, np.full(k, 3), basis]), 4 + 3 * c
 
 
 def preview_face(face: BaseFace) -> bytes:
     """The face file of a preview of ``face``, drawn while ``face`` itself is on its way (a paced call,
-    sender/face_pacing.py): its mesh to PREVIEW_VERTEX_STEPS and its picture at PREVIEW_QUALITY, without
-    the motion basis, open mouth, shut eyes or texture: on the nine dev clips' faces 2.4-3.6 KB, against
-    9.7-17.9 KB whole, the mesh most of it."""
-    base = _base()
-    steps = np.rint((face.vertices - base.vertices) * (VERTEX_STEPS / PREVIEW_VERTEX_STEPS)) * PREVIEW_VERTEX_STEPS
+    sender/face_pacing.py): its mesh in steps of 1/PREVIEW_MESH_STEPS of the face's height and its picture
+    at PREVIEW_QUALITY, without
+    the motion basis, open mouth, shut eyes or texture: on the nine dev clips' faces 1.3-2.3 KB, against
+    7.8-13.4 KB whole."""
     picture = None if face.picture is None else replace(face.picture, mouth=None, mouth_points=None,
                                                         shut_eyes=None, shut_eyes_at=None)
-    preview = replace(face, vertices=base.vertices + steps / VERTEX_STEPS, motion=None, texture=None, picture=picture)
-    return encode_face(preview, picture_quality=PREVIEW_QUALITY)
+    preview = replace(face, motion=None, texture=None, picture=picture)
+    return encode_face(preview, picture_format=PICTURE_FORMAT, picture_quality=PREVIEW_QUALITY,
+                       mesh_steps=PREVIEW_MESH_STEPS)
 
 
-def encode_picture(rgb: np.ndarray, ext: str = PICTURE_FORMAT, quality: int = PICTURE_QUALITY) -> bytes:
-    """A reference picture's bytes as a face file stores them."""
-    return _encode_image(rgb, ext, quality, "reference picture")
+def described(data: bytes) -> dict:
+    """A face file's description (its JSON: counts and bytes of each part), unchecked: for reports."""
+    return json.loads(data[_PREFIX.size:_PREFIX.size + _PREFIX.unpack_from(data)[3]])
 
 
 def _encode_image(rgb: np.ndarray, ext: str, quality: int, what: str) -> bytes:
+    """``rgb`` as an ``ext`` image at ``quality`` (0: QUALITY's)."""
+    quality = quality or QUALITY.get(ext, 0)
+    if ext == ".av1":
+        return encode_still(rgb, quality)
     params = {".jpg": [cv2.IMWRITE_JPEG_QUALITY, quality], ".webp": [cv2.IMWRITE_WEBP_QUALITY, quality]}
     ok, buf = cv2.imencode(ext, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), params.get(ext, []))
     if not ok:
@@ -268,10 +317,14 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
             mouth_points = np.array(info.get("mouth_points", np.zeros((0, 2))), dtype=np.float64)
             rings = None if "rings" not in info else np.array(info["rings"], dtype=np.int64)
         n_packed = int(info["packed"]) if version >= 6 else 0
+        n_coded = int(info["coded"]) if version >= CODED_VERSION else 0
+        mesh_steps = int(info.get("mesh", MESH_STEPS))
         uv_base = version >= 6 and info.get("uv") == "base"
         topology_base = version >= 6 and info.get("topology") == "base"
     except (ValueError, KeyError, TypeError, OverflowError, RecursionError):
         raise bad("unreadable description") from None
+    if not MESH_STEPS_ALLOWED[0] <= mesh_steps <= MESH_STEPS_ALLOWED[1]:
+        raise bad(f"mesh in steps of 1/{mesh_steps}")
     if n != N_LANDMARKS or not 0 < m <= MAX_FACES or n_tex < 0 or (topology_base and m != len(_base().faces)):
         raise bad(f"{n} vertices, {m} triangles")
     if (k, c) != (0, 0) and not (0 < k <= n and 0 < c <= MAX_COMPONENTS and over in OVER):
@@ -291,23 +344,30 @@ def decode_face(data: bytes, origin: str = "face model") -> BaseFace:
                              and (n_pic or not n_rings) and (n_mouth or not n_points)):
         raise bad(f"{n_rings} ring weights, {n_points} open mouth points")
     n_numbers = (96 if n_pic else 0) + n_rings + 8 * n_points if version >= 7 else 0
-    widths = ((6 if version >= 6 else 12) * n, 0 if uv_base else 8 * n, 0 if topology_base else 6 * m)
+    widths = ((0 if version >= CODED_VERSION else 6 if version >= 6 else 12) * n, 0 if uv_base else 8 * n,
+              0 if topology_base else 6 * m)
     n_raw = sum(widths) + n_motion + n_numbers
     n_stored = n_packed if version >= 6 else n_raw
-    if n_stored < 0 or len(data) != pos + n_stored + n_tex + n_pic + n_mouth + n_shut:
+    if n_stored < 0 or n_coded < 0 or len(data) != pos + n_stored + n_coded + n_tex + n_pic + n_mouth + n_shut:
         raise bad("its length does not match its description")
     raw = _unpacked(data[pos:pos + n_stored], n_raw, bad) if version >= 6 else data[pos:pos + n_raw]
-    if version >= 6:
+    faces = _base().faces if topology_base else \
+        np.frombuffer(raw, "<u2", 3 * m, widths[0] + widths[1]).reshape(m, 3).astype(np.int32)
+    if faces.max() >= n:
+        raise bad("vertex, texture coordinate or triangle out of range")
+    coded = np.zeros(0, np.int64)
+    if version >= CODED_VERSION:  # the mesh's steps and the basis's differences
+        coded = decode_integers(data[pos + n_stored:pos + n_stored + n_coded], *_groups(n, c, k))
+        steps = _steps_back(coded[:3 * n].reshape(1, n, 3), _stored_order(np.arange(n), faces), False)[0]
+        vertices = _base().vertices + steps / mesh_steps
+    elif version >= 6:
         vertices = _base().vertices + np.frombuffer(raw, "<i2", 3 * n).reshape(n, 3) / VERTEX_STEPS
     else:
         vertices = np.frombuffer(raw, "<f4", 3 * n).reshape(n, 3).astype(np.float64)
     uv = _base().uv if uv_base else np.frombuffer(raw, "<f4", 2 * n, widths[0]).reshape(n, 2).astype(np.float64)
-    faces = _base().faces if topology_base else \
-        np.frombuffer(raw, "<u2", 3 * m, widths[0] + widths[1]).reshape(m, 3).astype(np.int32)
-    if not (np.all(np.isfinite(vertices)) and np.all(np.abs(vertices) < 10) and np.all(np.isfinite(uv))
-            and faces.max() < n):
+    if not (np.all(np.isfinite(vertices)) and np.all(np.abs(vertices) < 10) and np.all(np.isfinite(uv))):
         raise bad("vertex, texture coordinate or triangle out of range")
-    motion = _decode_motion(raw, sum(widths), k, c, over, version, faces, bad) if k else None
+    motion = _decode_motion(raw, sum(widths), k, c, over, version, faces, coded[3 * n:], bad) if k else None
     if version >= 7 and n_pic:
         at = sum(widths) + n_motion
         projection = np.frombuffer(raw, "<f8", 12, at).reshape(3, 4).copy()
@@ -378,22 +438,29 @@ def _guess(values: np.ndarray, before: list[int]):
     return (2 * values[:, before].sum(axis=1) + len(before)) // (2 * len(before))
 
 
-def _encode_motion(motion: MotionBasis, faces: np.ndarray) -> bytes:
-    """Version 8's motion basis: vertices <u2 (k), steps u1 (c), then per stored vertex (_stored_order)
-    and pattern the steps' difference from their guess, u1 (c, k, 3) modulo 256: pattern by pattern."""
+def _encode_motion(motion: MotionBasis, faces: np.ndarray) -> tuple[bytes, np.ndarray]:
+    """A motion basis as version 10 stores it: its steps u1 (c), packed; its vertices, each as the step
+    from the one before, then per stored vertex (_stored_order) and pattern the steps' difference from
+    their guess (c, k, 3), coded."""
     steps = np.full(motion.components, MOST_STEPS) if motion.steps is None else np.asarray(motion.steps, np.int64)
     values = np.rint(motion.vectors * steps[:, None, None]).astype(np.int64)
-    order = _stored_order(motion.vertices, faces)
-    differences = np.stack([(values[:, i] - _guess(values, before)) % 256 for i, before in order], axis=1)
-    return (np.ascontiguousarray(motion.vertices, dtype="<u2").tobytes() + steps.astype("u1").tobytes()
-            + differences.astype("u1").tobytes())
+    vertices = np.asarray(motion.vertices, np.int64)
+    return steps.astype("u1").tobytes(), np.concatenate([
+        np.diff(vertices, prepend=-1), _differences(values, _stored_order(vertices, faces)).ravel()])
 
 
-def _steps_back(differences: np.ndarray, order: list[tuple[int, list[int]]]) -> np.ndarray:
-    """The (c, k, 3) steps that _encode_motion's differences stand for."""
+def _differences(values: np.ndarray, order: list[tuple[int, list[int]]]) -> np.ndarray:
+    """(c, k, 3) ``values`` as each stored vertex's difference from its guess, in the stored ``order``."""
+    return np.stack([values[:, i] - _guess(values, before) for i, before in order], axis=1)
+
+
+def _steps_back(differences: np.ndarray, order: list[tuple[int, list[int]]], wrap: bool) -> np.ndarray:
+    """The (c, k, 3) values that :func:`_differences` made ``differences`` of; ``wrap``: a version 8-9
+    basis, whose differences were stored modulo 256 (as u1) and whose steps lie within +-128."""
     values = np.zeros_like(differences)
     for n, (i, before) in enumerate(order):
-        values[:, i] = (_guess(values, before) + differences[:, n] + 128) % 256 - 128
+        guessed = _guess(values, before) + differences[:, n]
+        values[:, i] = (guessed + 128) % 256 - 128 if wrap else guessed
     return values
 
 
@@ -404,22 +471,29 @@ def _pattern_type(version: int) -> str:
 
 def _motion_size(version: int, k: int, c: int) -> int:
     """Bytes of a motion basis of c patterns over k vertices in a file of ``version``."""
+    if version >= CODED_VERSION:
+        return c
     if version >= 8:
         return 2 * k + c + 3 * c * k
     return 2 * k + 3 * np.dtype(_pattern_type(version)).itemsize * c * k
 
 
 def _decode_motion(data: bytes, pos: int, k: int, c: int, over: str, version: int, faces: np.ndarray,
-                   bad) -> MotionBasis:
-    vertices = np.frombuffer(data, "<u2", k, pos).astype(np.int64)
-    if vertices.max() >= N_LANDMARKS or len(set(vertices.tolist())) != k:
+                   coded: np.ndarray, bad) -> MotionBasis:
+    """The motion basis at ``pos`` in a file's unpacked ``data``, with its vertices and differences
+    ``coded`` in version 10 (else in ``data``)."""
+    wrap = version < CODED_VERSION
+    vertices = np.frombuffer(data, "<u2", k, pos).astype(np.int64) if wrap else np.cumsum(coded[:k]) - 1
+    if vertices.min() < 0 or vertices.max() >= N_LANDMARKS or len(set(vertices.tolist())) != k:
         raise bad("motion basis out of range")
     if version >= 8:
-        steps = np.frombuffer(data, "u1", c, pos + 2 * k).astype(np.int64)
+        pos += 2 * k if wrap else 0
+        steps = np.frombuffer(data, "u1", c, pos).astype(np.int64)
         if steps.min() < 1 or steps.max() > MOST_STEPS:
             raise bad("motion basis out of range")
-        differences = np.frombuffer(data, "u1", 3 * c * k, pos + 2 * k + c).reshape(c, k, 3).astype(np.int64)
-        values = _steps_back(differences, _stored_order(vertices, faces))
+        differences = np.frombuffer(data, "u1", 3 * c * k, pos + c).reshape(c, k, 3).astype(np.int64) \
+            if wrap else coded[k:].reshape(c, k, 3)
+        values = _steps_back(differences, _stored_order(vertices, faces), wrap)
         if np.any(np.abs(values) > steps[:, None, None]):
             raise bad("motion basis out of range")
         return MotionBasis(vertices, values / steps[:, None, None], over, steps)
@@ -457,11 +531,17 @@ def _decode_picture(data: bytes, size: tuple[int, int], projection: np.ndarray, 
 
 
 def _decode_image(data: bytes, size: tuple[int, int], what: str, bad) -> np.ndarray:
-    """The image, decoded only once its header declares the ``size`` the face model does."""
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if image_size(data) == size else None
-    if image is None or image.shape[1::-1] != size:
-        raise bad(f"{what} is not a {size[0]}x{size[1]} WebP, JPEG or PNG image")
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    """The image (AV1, or WebP, JPEG or PNG), decoded only once its header declares the ``size`` the
+    face model does (AV1: within as many pixels, checked by the decoder before it allocates them)."""
+    if data[:1] == _AV1_SEQUENCE:  # an odd side coded one longer (encode_still)
+        image = VideoDecoder(even(size)).decode_still(data)
+        if image is not None and image.shape[1::-1] == even(size):
+            return np.ascontiguousarray(image[:size[1], :size[0]])
+    else:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if image_size(data) == size else None
+        if image is not None and image.shape[1::-1] == size:
+            return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    raise bad(f"{what} is not a {size[0]}x{size[1]} AV1, WebP, JPEG or PNG image")
 
 
 def _mouth_points(points: np.ndarray, face: BaseFace, size: tuple[int, int], bad) -> np.ndarray:

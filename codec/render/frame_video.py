@@ -53,6 +53,9 @@ PRESET = "6"
 #: frames after each. With it the frames are even, and on seven dev clips the whole picture gained
 #: 0.03-0.46 dB at 4 kbit/s, 0.15-0.42 at 10 and 0.37-0.63 at 30 (docs/picture_layer.md).
 RTC = 1
+#: SVT-AV1's preset for a still picture: 2 took 2 % fewer bytes than 4 for as much less PSNR, 6 a
+#: quarter more (a 256x256 face's picture at CRF 25).
+STILL_PRESET = "4"
 _TEMPORAL_DELIMITER = b"\x12\x00"  # every temporal unit's first OBU: dropped on the wire
 _CHANGE = (20, 1)  # starting counts of a block's change: most blocks keep their choice
 KEY, BLOCKS_ONLY, COUNTER = 1, 2, 64
@@ -106,6 +109,61 @@ class VideoEncoder:
             self._codec.encode(None)
 
 
+def to_yuv(rgb: np.ndarray) -> np.ndarray:
+    """(h, w, 3) uint8 RGB of even sides as its I420 planes, (3h/2, w) uint8, as a still picture is
+    coded (:func:`encode_still`): full-range BT.601 (JPEG's YCbCr, rounded), the chroma the mean of
+    each 2x2 pixels.
+
+    Why not PyAV's own conversion (libswscale's), which the layer's video keeps: it truncates where
+    this rounds, both ways, which drew every decoded colour 1.0-1.3 levels dark, and it kept less of
+    the colour: the nine dev clips' 256x256 reference pictures as AV1 at CRF 25 came out 0.9-2.7 dB
+    below this conversion's (docs/face_file.md). For the layer's video it moved the whole picture by
+    +0.03 dB on average at 4 kbit/s and +0.05 at 10, clip by clip -0.23 to +0.20, and would have
+    needed a new stream version (docs/picture_layer.md)."""
+    height, width = rgb.shape[:2]
+    ycc = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2YCrCb)
+    chroma = cv2.resize(ycc[:, :, 1:], (width // 2, height // 2), interpolation=cv2.INTER_AREA)
+    return np.concatenate([ycc[:, :, 0].ravel(), chroma[:, :, 1].ravel(), chroma[:, :, 0].ravel()]).reshape(
+        height * 3 // 2, width)
+
+
+def from_yuv(planes: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """The (h, w, 3) uint8 RGB of :func:`to_yuv`'s ``planes`` of a picture of ``size`` (w, h), the chroma
+    scaled up bilinearly."""
+    width, height = size
+    quarter = (width // 2) * (height // 2)
+    chroma = planes[height:].reshape(-1)
+    blue, red = (chroma[i * quarter:(i + 1) * quarter].reshape(height // 2, width // 2) for i in (0, 1))
+    full = cv2.resize(np.dstack([red, blue]), (width, height), interpolation=cv2.INTER_LINEAR)
+    return cv2.cvtColor(np.dstack([planes[:height], full]), cv2.COLOR_YCrCb2RGB)
+
+
+def even(size: tuple[int, int]) -> tuple[int, int]:
+    """``size`` (w, h) with each side rounded up to even, as 4:2:0 needs."""
+    return size[0] + size[0] % 2, size[1] + size[1] % 2
+
+
+def encode_still(rgb: np.ndarray, crf: int) -> bytes:
+    """``rgb`` ((h, w, 3) uint8) as one AV1 key frame at SVT-AV1's ``crf`` (0-63, finer lower), a
+    temporal unit without its temporal delimiter as :meth:`VideoEncoder.encode` gives: a face file's
+    pictures (codec/face_file/format.py), read back by :class:`VideoDecoder`. An odd side is coded
+    one pixel longer, its last row or column repeated (:func:`even`)."""
+    import av
+
+    os.environ.setdefault("SVT_LOG", "1")
+    height, width = rgb.shape[:2]
+    padded = cv2.copyMakeBorder(rgb, 0, height % 2, 0, width % 2, cv2.BORDER_REPLICATE)
+    codec = av.CodecContext.create("libsvtav1", "w")
+    codec.width, codec.height = even((width, height))
+    codec.pix_fmt, codec.time_base = "yuv420p", Fraction(1, 25)
+    codec.options = {"preset": STILL_PRESET, "crf": str(crf)}
+    codec.open()
+    frame = av.VideoFrame.from_ndarray(to_yuv(padded), format="yuv420p")
+    frame.pts = 0
+    data = b"".join(bytes(p) for p in [*codec.encode(frame), *codec.encode(None)])
+    return data[len(_TEMPORAL_DELIMITER):] if data.startswith(_TEMPORAL_DELIMITER) else data
+
+
 class VideoDecoder:
     """dav1d, one frame in, one out, refusing a frame of more pixels than ``largest`` (w, h) before
     it is allocated, and one wider or taller after."""
@@ -120,6 +178,19 @@ class VideoDecoder:
     def decode(self, data: bytes) -> np.ndarray | None:
         """The (h, w, 3) uint8 RGB frame of a temporal unit of :meth:`VideoEncoder.encode`; None
         if it does not decode to one frame within ``largest``."""
+        frame = self._frame(data)
+        return None if frame is None else frame.to_ndarray(format="rgb24")
+
+    def decode_still(self, data: bytes) -> np.ndarray | None:
+        """The (h, w, 3) uint8 RGB picture of :func:`encode_still`'s bytes; None unless they decode
+        to one 8-bit 4:2:0 frame of even sides within ``largest``."""
+        frame = self._frame(data)
+        if frame is None or frame.format.name != "yuv420p" or (frame.width, frame.height) != even(
+                (frame.width, frame.height)):
+            return None
+        return from_yuv(frame.to_ndarray(format="yuv420p"), (frame.width, frame.height))
+
+    def _frame(self, data: bytes):
         import av
 
         try:
@@ -128,7 +199,7 @@ class VideoDecoder:
             return None
         if len(frames) != 1 or frames[0].width > self.largest[0] or frames[0].height > self.largest[1]:
             return None
-        return frames[0].to_ndarray(format="rgb24")
+        return frames[0]
 
 
 def shrunk(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
