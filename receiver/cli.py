@@ -48,6 +48,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="the sender's face model (fd-enroll); default: the model the stream carries, "
                         "else the generic face (a face paced beside the frames, fd-send --paced-face: the "
                         "generic face, then its preview, then the face, each from when it has come)")
+    p.add_argument("--faces", metavar="DIR",
+                   help="a folder of face models the receiver holds, each named by its id (ID.fdface, the "
+                        "sha256 fd-enroll prints): a stream that names one is drawn with it from its first "
+                        "frame (fd-send --face-by-id, or a face in the stream that need not be waited for), "
+                        "and a face model that comes whole in a stream is kept there for the next call "
+                        "(sealed with --key if given)")
     p.add_argument("--key", metavar="FILE",
                    help="the stream is sealed with this pre-shared key (fd-keygen): packets that fail "
                         "authentication or replay are dropped and counted; also opens a sealed --face file")
@@ -88,6 +94,7 @@ def _run(args) -> int:
     from facedeform.common.errors import InputError
     from facedeform.common.keys import read_key
     from facedeform.common.progress import progress_for
+    from facedeform.receiver.face_cache import FaceCache
     from facedeform.receiver.output import open_writer
     from facedeform.receiver.session import ReceiveSession
     from facedeform.receiver.transport import Listener, open_file
@@ -120,8 +127,10 @@ def _run(args) -> int:
     if listener and not args.quiet:
         print(f"fd-recv: listening on {listener.url}", file=sys.stderr, flush=True)
     source = listener.source() if listener else open_file(args.input or "-", sys.stdin.buffer, key)
+    faces = FaceCache(args.faces, key, lambda line: print(f"fd-recv: warning: {line}", file=sys.stderr)) \
+        if args.faces else None
     session = ReceiveSession(open_sinks, args.size, face, f"--face {args.face}", args.fps, look=args.look,
-                             dump=args.dump)
+                             dump=args.dump, faces=faces)
     size = source.size
     progress = progress_for("fd-recv", args.quiet or args.json) if size else None
     update = (lambda: progress.update(source.consumed, size, f"{session.frames} frames")) \

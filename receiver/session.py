@@ -16,6 +16,7 @@ from facedeform.common.errors import BitstreamError, InputError
 from facedeform.common.npz import NpzAppender
 from facedeform.common.stages import Sink, StreamSource, View
 from facedeform.protocol.stream import Damage, End, Frame, Header, Model, Picture
+from facedeform.receiver.face_cache import FaceCache
 from facedeform.receiver.face_view import default_look, open_view, output_size
 
 LATENCY_WINDOW = 10_000  # frames: latency statistics cover the last 6-7 minutes at 25 fps
@@ -33,7 +34,9 @@ class ReceiveSession:
     stream carries, else the generic face; look: one of face_view.LOOKS, None
     for the most the face allows (face_view.default_look). fps: output rate (None: the
     stream's), met by repeating or dropping frames; dump: a .npz path for the decoded parameters,
-    written as frames pass and finished by :meth:`close`. Damage is reported through
+    written as frames pass and finished by :meth:`close`; faces: a folder of face models by id
+    (receiver.face_cache) that stands in for ``--face`` when it holds the stream's and keeps the
+    one the stream carries. Damage is reported through
     ``warn`` and concealed until the next keyframe; frames already written
     survive a broken stream. Memory does not grow with the call: counters, and the latency
     of the last :data:`LATENCY_WINDOW` frames.
@@ -42,8 +45,9 @@ class ReceiveSession:
     def __init__(self, open_sinks: Callable[[float, tuple[int, int]], list[Sink]], size: tuple[int, int] | None,
                  face: BaseFace | None = None,
                  face_name: str = "--face", fps: float | None = None, warn=None, look: str | None = None,
-                 dump: str | None = None) -> None:
+                 dump: str | None = None, faces: FaceCache | None = None) -> None:
         self._open_sinks, self._size, self._given, self._given_name = open_sinks, size, face, face_name
+        self._faces = faces
         self._fps, self._look, self._out_fps = fps, look, 0.0
         self.look: str | None = None
         self._warn = warn or (lambda line: print(f"fd-recv: warning: {line}", file=sys.stderr))
@@ -135,6 +139,10 @@ class ReceiveSession:
         self._header_seen = header
         out = self._out_fps = self._fps or header.fps
         self._ratio = Fraction(out).limit_denominator(1001) / Fraction(header.fps).limit_denominator(1001)
+        faces = self._faces
+        held = None if self._given is not None or faces is None else faces.get(header.face_id)
+        if held is not None and faces is not None:
+            self._given, self._given_name = held, f"--faces {faces.folder}"
         if self._given is not None:
             if header.face_id != self._given.content_id:
                 raise InputError(f"{self._given_name} is face model {self._given.content_id[:12]}, "
@@ -169,6 +177,8 @@ class ReceiveSession:
         face = decode_face(event.data, "the stream's face model")
         if face.content_id != self._header.face_id:
             raise BitstreamError("the stream's face model does not match the face id in its header")
+        if self._faces is not None:
+            self._faces.keep(event.data)
         self._show(face, "stream")
 
     def _show(self, face: BaseFace, kind: str, check_id: bool = True) -> View:

@@ -7,7 +7,7 @@ the receiver draws the generic face; a preview of the face (codec/face_file/form
 after it completes. The picture layer, whose sender must draw what the receiver draws, starts once
 the face is through and the last 2 seconds carried none of it (its first key then finds the rate's
 window as at a call's start). On three dev clips' crops at 4 kbit/s the preview was drawn after
-8.3-9.6 s (the face sent first: 25-29 s), the face itself after 44-52 s (README, "One-off bytes").
+5.0-6.1 s (the face sent first: 18-22 s), the face itself after 31-38 s (README, "One-off bytes").
 """
 
 from collections import deque
