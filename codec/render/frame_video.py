@@ -117,10 +117,11 @@ def to_yuv(rgb: np.ndarray) -> np.ndarray:
 
     Why not PyAV's own conversion (libswscale's), which the layer's video keeps: it truncates where
     this rounds, both ways, which drew every decoded colour 1.0-1.3 levels dark, and it kept less of
-    the colour: the nine dev clips' 256x256 reference pictures as AV1 at CRF 25 came out 0.9-2.7 dB
-    below this conversion's (docs/face_file.md). For the layer's video it moved the whole picture by
-    +0.03 dB on average at 4 kbit/s and +0.05 at 10, clip by clip -0.23 to +0.20, and would have
-    needed a new stream version (docs/picture_layer.md)."""
+    the colour: the nine dev clips' 256x256 reference pictures as AV1 at CRF 25 came out 1.4-2.7 dB
+    below this conversion's, which spends 10-14 % more bytes there; at CRF 28, 3-4 % fewer bytes than
+    libswscale's at 25, this one is still 0.5-2.0 dB above (docs/face_file.md). For the layer's video
+    it moved the whole picture by +0.03 dB on average at 4 kbit/s and +0.05 at 10, clip by clip
+    -0.23 to +0.20, and would have needed a new stream version (docs/picture_layer.md)."""
     height, width = rgb.shape[:2]
     ycc = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2YCrCb)
     chroma = cv2.resize(ycc[:, :, 1:], (width // 2, height // 2), interpolation=cv2.INTER_AREA)
