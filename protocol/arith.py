@@ -246,6 +246,15 @@ def _p0(n0, n1):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def _primed(data):  # pragma: no cover - compiled
+    """A decoder's start on ``data``, read as zeros past its end: (code, range, shift, bytes read)."""
+    code = np.int64(0)
+    for read in range(4):
+        code = code << 8 | (data[read] if read < data.size else 0)
+    return code, np.int64(1) << 32, 32, 4
+
+
+@njit(cache=True)
 def _encode(bits, n0, n1, out):  # pragma: no cover - compiled
     """Encoder.bit over ``bits`` from an empty Encoder: the interval's start is the bytes written to
     ``out`` then ``low`` (under 2**32), as (bytes written, low, range, shift, n0, n1)."""
@@ -260,10 +269,7 @@ def _encode(bits, n0, n1, out):  # pragma: no cover - compiled
 def _decode(data, count, n0, n1, bits):  # pragma: no cover - compiled
     """Decoder.bit ``count`` times into ``bits``, the data read as zeros past its end: (bytes read,
     the read bytes' value less the interval's start, range, shift, n0, n1)."""
-    code, span, shift, read = np.int64(0), np.int64(1) << 32, 32, 0
-    for _ in range(4):
-        code = code << 8 | (data[read] if read < data.size else 0)
-        read += 1
+    code, span, shift, read = _primed(data)
     for k in range(count):
         bit, code, span, shift, read = _get(_p0(n0, n1), code, span, shift, read, data)
         bits[k] = bit
@@ -359,10 +365,7 @@ def _get_modelled(n0, n1, g, m, code, span, shift, read, data):  # pragma: no co
 @njit(cache=True)
 def _decode_integers(data, groups, n0, n1, values):  # pragma: no cover - compiled
     """_encode_integers' integers into ``values``, the data read as zeros past its end."""
-    code, span, shift, read = np.int64(0), np.int64(1) << 32, 32, 0
-    for _ in range(4):
-        code = code << 8 | (data[read] if read < data.size else 0)
-        read += 1
+    code, span, shift, read = _primed(data)
     for k in range(values.size):
         g = groups[k]
         nonzero, code, span, shift, read = _get_modelled(n0, n1, g, _ZERO, code, span, shift, read, data)

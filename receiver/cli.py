@@ -127,8 +127,7 @@ def _run(args) -> int:
     if listener and not args.quiet:
         print(f"fd-recv: listening on {listener.url}", file=sys.stderr, flush=True)
     source = listener.source() if listener else open_file(args.input or "-", sys.stdin.buffer, key)
-    faces = FaceCache(args.faces, key, lambda line: print(f"fd-recv: warning: {line}", file=sys.stderr)) \
-        if args.faces else None
+    faces = FaceCache(args.faces, key) if args.faces else None
     session = ReceiveSession(open_sinks, args.size, face, f"--face {args.face}", args.fps, look=args.look,
                              dump=args.dump, faces=faces)
     size = source.size

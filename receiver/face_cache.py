@@ -19,18 +19,18 @@ SUFFIX = ".fdface"
 
 
 class FaceCache:
-    """The face models in ``folder`` (made if missing), sealed with ``key`` if given; ``warn(line)``
-    hears of a file that cannot be used or kept (the call goes on without it)."""
+    """The face models in ``folder`` (made if missing), sealed with ``key`` if given; the ``warn(line)``
+    given to each method hears of a file that cannot be used or kept (the call goes on without it)."""
 
-    def __init__(self, folder: str | Path, key: bytes | None, warn: Callable[[str], None]) -> None:
+    def __init__(self, folder: str | Path, key: bytes | None) -> None:
         self.folder = Path(folder)
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise InputError(f"{folder}: cannot make a folder of face models ({exc.strerror or exc})") from None
-        self._key, self._warn = key, warn
+        self._key = key
 
-    def get(self, ident: str) -> BaseFace | None:
+    def get(self, ident: str, warn: Callable[[str], None]) -> BaseFace | None:
         """The face model of id ``ident``, or None if the folder does not hold it whole."""
         path = self._path(ident)
         if not path.is_file():
@@ -38,14 +38,14 @@ class FaceCache:
         try:
             face = decode_face(read_face_bytes(path, self._key), str(path))
         except InputError as exc:
-            self._warn(f"{exc}: not used")
+            warn(f"{exc}: not used")
             return None
         if face.content_id != ident:
-            self._warn(f"{path}: holds face model {face.content_id[:12]}, not the one its name says: not used")
+            warn(f"{path}: holds face model {face.content_id[:12]}, not the one its name says: not used")
             return None
         return face
 
-    def keep(self, data: bytes) -> None:
+    def keep(self, data: bytes, warn: Callable[[str], None]) -> None:
         """Keeps a face file's ``data`` under its id, unless held already (written whole, then named)."""
         path = self._path(face_id(data))
         if path.exists():
@@ -55,7 +55,7 @@ class FaceCache:
             save_face_file(data, part, self._key)
             part.replace(path)
         except (InputError, OSError) as exc:
-            self._warn(f"cannot keep the stream's face model in {self.folder} ({exc})")
+            warn(f"cannot keep the stream's face model in {self.folder} ({exc})")
 
     def _path(self, ident: str) -> Path:
         return self.folder / f"{ident}{SUFFIX}"

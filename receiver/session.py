@@ -139,10 +139,10 @@ class ReceiveSession:
         self._header_seen = header
         out = self._out_fps = self._fps or header.fps
         self._ratio = Fraction(out).limit_denominator(1001) / Fraction(header.fps).limit_denominator(1001)
-        faces = self._faces
-        held = None if self._given is not None or faces is None else faces.get(header.face_id)
-        if held is not None and faces is not None:
-            self._given, self._given_name = held, f"--faces {faces.folder}"
+        if self._given is None and self._faces is not None:
+            held = self._faces.get(header.face_id, self._warn)
+            if held is not None:
+                self._given, self._given_name = held, f"--faces {self._faces.folder}"
         if self._given is not None:
             if header.face_id != self._given.content_id:
                 raise InputError(f"{self._given_name} is face model {self._given.content_id[:12]}, "
@@ -178,7 +178,7 @@ class ReceiveSession:
         if face.content_id != self._header.face_id:
             raise BitstreamError("the stream's face model does not match the face id in its header")
         if self._faces is not None:
-            self._faces.keep(event.data)
+            self._faces.keep(event.data, self._warn)
         self._show(face, "stream")
 
     def _show(self, face: BaseFace, kind: str, check_id: bool = True) -> View:

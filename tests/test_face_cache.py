@@ -26,24 +26,24 @@ def test_a_face_that_came_in_the_stream_is_kept_and_then_draws_a_call_sent_by_id
 
 def test_a_file_that_is_not_the_face_its_name_says_is_not_used(face, tmp_path):
     lines: list[str] = []
-    cache = FaceCache(tmp_path, None, lines.append)
+    cache = FaceCache(tmp_path, None)
     data = face.data
     ident = face_id(data)
-    assert cache.get(ident) is None and not lines  # not held: no warning
+    assert cache.get(ident, lines.append) is None and not lines  # not held: no warning
     (tmp_path / f"{ident}.fdface").write_bytes(data[:-1])
-    assert cache.get(ident) is None and "not used" in lines[-1] and "\n" not in lines[-1]
+    assert cache.get(ident, lines.append) is None and "not used" in lines[-1] and "\n" not in lines[-1]
     other = "0" * 64
     save_face_file(data, tmp_path / f"{other}.fdface")
-    assert cache.get(other) is None and "not the one its name says" in lines[-1]
+    assert cache.get(other, lines.append) is None and "not the one its name says" in lines[-1]
     (tmp_path / f"{ident}.fdface").unlink()
-    cache.keep(data)
-    assert np.array_equal(cache.get(ident).vertices, Face(data).model.vertices)
+    cache.keep(data, lines.append)
+    assert np.array_equal(cache.get(ident, lines.append).vertices, Face(data).model.vertices)
 
 
 def test_a_sealed_folder_keeps_faces_sealed(face, tmp_path):
     key = bytes(range(32))
     data = face.data
-    FaceCache(tmp_path, key, print).keep(data)
+    FaceCache(tmp_path, key).keep(data, print)
     stored = (tmp_path / f"{face_id(data)}.fdface").read_bytes()
     assert stored != data and data not in stored
-    assert FaceCache(tmp_path, key, print).get(face_id(data)) is not None
+    assert FaceCache(tmp_path, key).get(face_id(data), print) is not None

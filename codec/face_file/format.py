@@ -238,9 +238,8 @@ def _groups(n: int, c: int, k: int) -> tuple[np.ndarray, int]:
 def preview_face(face: BaseFace) -> bytes:
     """The face file of a preview of ``face``, drawn while ``face`` itself is on its way (a paced call,
     sender/face_pacing.py): its mesh in steps of 1/PREVIEW_MESH_STEPS of the face's height and its picture
-    at PREVIEW_QUALITY, without
-    the motion basis, open mouth, shut eyes or texture: on the nine dev clips' faces 1.3-2.3 KB, against
-    7.8-13.4 KB whole."""
+    at PREVIEW_QUALITY, without the motion basis, open mouth, shut eyes or texture: on the nine dev clips'
+    faces 1.3-2.3 KB, against 7.8-13.4 KB whole."""
     picture = None if face.picture is None else replace(face.picture, mouth=None, mouth_points=None,
                                                         shut_eyes=None, shut_eyes_at=None)
     preview = replace(face, motion=None, texture=None, picture=picture)

@@ -99,8 +99,7 @@ class VideoEncoder:
         if key:
             frame.pict_type = av.video.frame.PictureType.I
         self._count += 1
-        data = b"".join(bytes(p) for p in self._codec.encode(frame))
-        return data[len(_TEMPORAL_DELIMITER):] if data.startswith(_TEMPORAL_DELIMITER) else data
+        return _undelimited(b"".join(bytes(p) for p in self._codec.encode(frame)))
 
     def close(self) -> None:
         """Ends the encoder, once: its last packets, if any, are not needed (each frame's came at once).
@@ -162,7 +161,11 @@ def encode_still(rgb: np.ndarray, crf: int) -> bytes:
     codec.open()
     frame = av.VideoFrame.from_ndarray(to_yuv(padded), format="yuv420p")
     frame.pts = 0
-    data = b"".join(bytes(p) for p in [*codec.encode(frame), *codec.encode(None)])
+    return _undelimited(b"".join(bytes(p) for p in [*codec.encode(frame), *codec.encode(None)]))
+
+
+def _undelimited(data: bytes) -> bytes:
+    """A temporal unit without its temporal delimiter, as it goes on the wire."""
     return data[len(_TEMPORAL_DELIMITER):] if data.startswith(_TEMPORAL_DELIMITER) else data
 
 
