@@ -36,8 +36,10 @@ PACKING = 9  # bytes a layer packet adds to its payload (sync, type, length, fra
 #: bytes), its packing and blocks, and room for what moves. Below a rate that pays for one every
 #: frame, frames are sent every second, third... frame: SVT-AV1's rate control, told the frames
 #: it really gets, then keeps to the rate (skipping frames it was told of made it spend the
-#: skipped frames' bits on the next, which the rate then skipped in turn).
-SMALLEST = 40
+#: skipped frames' bits on the next, which the rate then skipped in turn). 60 rather than 40 (a
+#: frame every 5th frame at 4 kbit/s, not every 4th): fewer, better frames, which the model carries
+#: between them (docs/picture_layer.md).
+SMALLEST = 60
 #: SVT-AV1's rate control in its low-delay mode misses at these sizes (by up to 30 % over on
 #: sadtalker_WDA_KatieHill at 30 kbit/s, 20 % under on lipnet): it is asked for the video's
 #: share as planned, and a video frame is skipped while the video has spent more than its share
@@ -158,6 +160,7 @@ class PictureLayer:
         self._size = 8.0 * SMALLEST  # bits of a video packet, a running mean
         self._key_every = KEY_EVERY * header.fps if datagrams else None
         self._last_key: int | None = None
+        self._last_video: int | None = None  # the last frame a video frame went with
         self._last: int | None = None  # the last frame stepped
         self.packets = self.bits = 0
 
@@ -171,13 +174,14 @@ class PictureLayer:
             self._unplaced.append((seq, params))
         model = self._look.model_picture(params, seq)  # at the size the choice is made at
         packets: list[bytes] = []
-        room = self._window_bits - sum(self._recent) - spent
+        room = self._room(spent)
         key = self._last_key is None or (  # within KEY_EVERY, on a frame the video is sent
             self._key_every is not None and seq - self._last_key > self._key_every - self._every)
         self._parameter_bits += (spent - self._parameter_bits) / PARAMETER_MEMORY
         share = (1 - BLOCKS_SHARE) * max(0.0, self._frame_bits - self._parameter_bits)
         self._credit = min(self._credit + share, BURST * share * self._fps)
-        if seq % self._every == 0 and (key or (self._credit >= 0 and room >= HEADROOM * self._size)):
+        due = self._last_video is None or seq - self._last_video >= self._every
+        if due and (key or (self._credit >= 0 and room >= HEADROOM * self._size)):
             packets = self._send(seq, self._sized(frame_bgr), model, key, encoder)
         elif self._layer.frame is not None and min(self._saved, room) >= 8 * (PACKING + 4):
             rgb = self._looked(self._sized(frame_bgr))
@@ -192,6 +196,16 @@ class PictureLayer:
         self._recent.append(spent + bits)
         self._last = seq
         return packets
+
+    def _room(self, spent: float) -> float:
+        """Bits the layer may add to this frame's ``spent`` so that every 2-second window this frame falls
+        in keeps within the rate, with room left in it for the parameters of the frames still to come."""
+        recent = np.asarray(self._recent, dtype=np.float64)[::-1]  # newest first
+        span = self._recent.maxlen or 0
+        kept = np.r_[0.0, np.cumsum(recent)]  # bits of the newest 0, 1, ... frames before this one
+        later = np.arange(span + 1)[::-1]  # frames still to come in the window that keeps that many
+        kept = np.r_[kept, np.full(span + 1 - len(kept), kept[-1])]
+        return self._window_bits - spent - float(np.max(kept + later * self._parameter_bits))
 
     @property
     def picture(self) -> np.ndarray | None:
@@ -230,10 +244,9 @@ class PictureLayer:
             model, parts, looked, before, favour=favour, shrink=self._shrink))
         packets = [] if data is None else encoder.picture(seq, data)
         bits = 8 * stream_size(packets, self._sealed)
-        # A packet's size to expect: after the first key, half of it (the next frame comes after the
-        # longest gap and costs the most: sadtalker_WDA_KatieHill at 4 kbit/s, a key of 3656 bits, then
-        # 2104 when the usual frame was planned at 320, put its first 2 s 16 % over the rate).
-        self._size = bits / 2 if self._last_key is None else self._size + (bits - self._size) / 4
-        self._credit -= bits
+        if self._last_key is not None:  # the first key is the call's own: the window alone holds it
+            self._size += (bits - self._size) / 4
+            self._credit -= bits
         self._last_key = seq if key else self._last_key
+        self._last_video = seq
         return packets
