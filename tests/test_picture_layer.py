@@ -109,6 +109,19 @@ def test_the_rate_is_kept_within_a_tenth_over_any_two_seconds(call):
     assert bits.sum() * 25 / len(bits) > 0.7 * RATE * 1000  # and the rate is used
 
 
+def test_video_frames_follow_the_first_key_at_once(face, monkeypatch):
+    """The first key takes about a second of the layer's rate; the frames after it still come at the
+    video's usual interval, a frame in 5 at 4 kbit/s (the 2-second window alone holds the key: charged
+    to the video's share, it had held the next video frame back to frame 24 here, and on
+    sadtalker_WDA_KatieHill for two seconds)."""
+    sent = []
+    send = picture_layer.PictureLayer._send
+    monkeypatch.setattr(picture_layer.PictureLayer, "_send", lambda self, seq, *rest: sent.append(seq) or send(
+        self, seq, *rest))
+    list(facedeform.encode(CLIP, face, bitrate=4_000, embed_face=False))
+    assert sent[0] == 0 and sent[1] <= 10
+
+
 @pytest.mark.parametrize("body", [
     varint(3) + varint(1 << 30) + varint(0) + b"x",  # a payload larger than any
     varint(3) + varint(10) + varint(8) + b"xyz",  # past its own end
