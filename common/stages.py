@@ -50,6 +50,9 @@ class Decoder(Protocol):
 
     def close(self) -> list: ...
 
+    def hold_model(self) -> None:
+        """The receiver holds the stream's face model already: its chunks are passed over."""
+
 
 class StreamSource(Protocol):
     """Where a receiver's stream comes from (a file, stdin, a socket: ``receiver.transport``):

@@ -46,6 +46,7 @@ from facedeform.protocol.framing import (
     read_varint,
 )
 from facedeform.protocol.header import ID_BYTES, Header, parse_header
+from facedeform.protocol.model_parts import ModelParts
 from facedeform.protocol.priors import models_for
 
 MAX_PICTURE = 1 << 18  # bytes of one picture layer payload: far more than any rate asks for
@@ -96,7 +97,8 @@ class PacketDecoder:
         self._next = 0  # coded index the next delta packet must start at
         self._out = 0  # next output frame number
         self._last: tuple[int, np.ndarray, bool] | None = None  # coded index, params, face of the last decoded
-        self._model = bytearray()
+        self._model: ModelParts | None = None  # the in-band face model, from its first chunk
+        self._model_held = False  # the receiver holds the face model already (hold_model)
         self._picture: tuple[int, int, bytearray] | None = None  # (frame, total, bytes so far)
         self._previous = b""
         self._position = 0  # bytes of input (junk and damage included) before the packet being read
@@ -137,6 +139,7 @@ class PacketDecoder:
         data = bytes(data)
         events: list = []
         pos, accepted, repeated, fresh = 0, False, True, 0
+        started = self._last is not None  # (a late joiner's first frames, copies or not, repair nothing)
         while pos < len(data):
             repeat = next((len(r) for r in self._recent if data.startswith(r, pos)), 0)
             if repeat:
@@ -158,7 +161,8 @@ class PacketDecoder:
             if not (repeated and data):
                 return None
             self.stats.duplicates += 1  # a datagram of packets all taken before
-        self.stats.repaired += max(0, fresh - 1)  # a datagram brings one frames packet of its own
+        if started:
+            self.stats.repaired += max(0, fresh - 1)  # a datagram brings one frames packet of its own
         return events
 
     def accept_wire(self, buf: bytes, pos: int, final: bool, at: int) -> Read:
@@ -323,22 +327,44 @@ class PacketDecoder:
         return [header]
 
     def _on_model(self, body: bytes) -> list | None:
-        got = read_varint(body, 0, self._header.model_size)
+        """A chunk of the face model, from anywhere in it (a paced face goes round over datagrams:
+        protocol/model_parts.py); the preview and the face are each one event, once."""
+        header = self._header
+        got = read_varint(body, 0, header.model_size)
         if got is None:
             return None
         offset, pos = got
-        chunk = body[pos:]
-        if offset < len(self._model) or not chunk:
+        if self._model_held or not body[pos:]:
             self.stats.duplicates += 1
             return []
-        if offset > len(self._model) or offset + len(chunk) > self._header.model_size:
+        parts = self._model = self._model or ModelParts(header.model_size, header.preview_size)
+        had = parts.missing
+        added = parts.add(offset, body[pos:])
+        if added is None:
             return None
-        had, preview = len(self._model), self._header.preview_size
-        self._model += chunk
-        events = [Model(bytes(self._model[:preview]), preview=True)] if had < preview <= len(self._model) else []
-        if len(self._model) == self._header.model_size:
-            events.append(Model(bytes(self._model[preview:])))
+        if not added:
+            self.stats.duplicates += 1
+            return []
+        preview = header.preview_size
+        events = [Model(parts.bytes(preview), preview=True)] if had < preview <= parts.missing else []
+        if parts.whole:
+            events.append(Model(parts.bytes()[preview:]))
         return events
+
+    def hold_model(self) -> None:
+        """The receiver holds the stream's face model already (by its id): its chunks are passed over,
+        and :attr:`model_missing` says it is whole."""
+        self._model_held = True
+
+    @property
+    def model_missing(self) -> int:
+        """The first byte of the stream's face model not held (what a receiver reports back, so that a
+        paced face's sender goes on from there): its size once it is held, or none is carried; 0
+        before the header."""
+        if self.header is None:
+            return 0
+        size = self.header.model_size
+        return size if self._model_held or not size else (0 if self._model is None else self._model.missing)
 
     def _on_picture(self, body: bytes) -> list | None:
         """A piece of a picture layer's payload: pieces come in order, one payload at a time (a new
@@ -476,6 +502,13 @@ class WrapsPacketDecoder:
     @property
     def ended(self) -> bool:
         return self._core.ended
+
+    @property
+    def model_missing(self) -> int:
+        return self._core.model_missing
+
+    def hold_model(self) -> None:
+        self._core.hold_model()
 
 
 class ByteStreamDecoder(WrapsPacketDecoder):

@@ -54,7 +54,7 @@ class End:
 class Stats:
     """Counters a CLI can print: packets taken, rejected and ignored, bytes skipped, frames concealed,
     and frames packets repaired (taken from a later datagram's copies: the datagram that carried them
-    first was lost or came late)."""
+    first was lost or came late; none in a late joiner's first datagram, its keyframe perhaps a copy)."""
 
     packets: int = 0
     damaged: int = 0

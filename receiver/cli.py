@@ -66,9 +66,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "header is there at its first keyframe (a receiver restarted mid-call) instead of "
                         "waiting for the sender to repeat it")
     p.add_argument("--no-reports", action="store_true",
-                   help="with --listen udp://: send the sender no loss reports (by default one of 17 bytes "
+                   help="with --listen udp://: send the sender no loss reports (by default one of 21 bytes "
                         "every 0.5 s while the stream comes, so that fd-send sends its copies only while "
-                        "datagrams are lost; without them it always sends them: about twice the bits)")
+                        "datagrams are lost, and a paced face only until it is held; without them it always "
+                        "sends the copies, about twice the bits, and a paced face round the whole call)")
     p.add_argument("--timeout", type=number(0.1, 3600), default=5.0, metavar="S",
                    help="with --listen: end after S seconds without data once the stream has started (default 5)")
     p.add_argument("--dump", metavar="FILE.npz", help="also write the decoded parameters of every frame")

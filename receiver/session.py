@@ -148,6 +148,8 @@ class ReceiveSession:
                 raise InputError(f"{self._given_name} is face model {self._given.content_id[:12]}, "
                                  f"the stream was made for {header.face_id[:12]}")
             self._show(self._given, "file")
+            if self.source is not None:  # its chunks in the stream are passed over, and reported held
+                self.source.decoder.hold_model()
         elif not header.model_size:
             self._show(load_base_face(), "generic")
         elif header.preview_size:  # a paced face: the generic face until its preview has come

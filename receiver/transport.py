@@ -178,7 +178,8 @@ class UdpSource:
         self._reported = now
         stats = self.decoder.stats
         try:
-            self._sock.sendto(encode_report(Report(self._received, stats.repaired, stats.concealed)), peer)
+            self._sock.sendto(encode_report(Report(self._received, stats.repaired, stats.concealed,
+                                                   self.decoder.model_missing)), peer)
         except OSError:  # the way back is closed: the sender keeps its copies
             self._reports = False
 

@@ -73,7 +73,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="with --face and --bitrate (or --quality), send the face model beside the frames "
                         "within the rate, a coarse preview first, instead of all before the first frame: the "
                         "receiver draws at once (the generic face, then the preview, then the face); for live "
-                        "links (a file then starts with the generic face)")
+                        "links (a file then starts with the generic face). Over udp:// it goes round until "
+                        "the receiver reports it held, or the whole call where none reports, so that a "
+                        "lost chunk comes again and a receiver that joins late gets it too")
     p.add_argument("--neutral", type=number(*LIMITS["neutral"], kind=int), metavar="FRAME",
                    help="frame index (from 0) of the person's rest face; default: the frame of the "
                         "first second with the mouth most closed, its eyes open")

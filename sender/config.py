@@ -71,7 +71,8 @@ class SendConfig:
     the parameters leave of it on the real frame as a small video where the model's picture
     misses it (sender/picture_layer.py; the parameters then aim at :func:`parameter_rate` of it);
     paced_face: the face model carried in the stream goes beside the frames within ``bitrate``, a
-    preview first, instead of before the first frame (sender/face_pacing.py; byte streams only).
+    preview first, instead of before the first frame (sender/face_pacing.py; over datagrams round and
+    round until the receiver reports it held).
     """
 
     level: int | None = None
@@ -109,9 +110,6 @@ class SendConfig:
             raise InputError("a paced face goes within a --bitrate (or --quality): give one")
         if self.paced_face and not self.embed_face:
             raise InputError("a paced face goes in the stream: not with --face-by-id")
-        if self.paced_face and self.datagrams:
-            raise InputError("a paced face goes over a file, pipe or tcp://; over udp:// the face goes before the "
-                             "first frame (leave out --paced-face)")
         if self.tag_bits not in TAG_BITS:
             raise InputError(f"tag bits must be a multiple of 8 from {TAG_BITS[0]} to {TAG_BITS[-1]}")
 

@@ -177,6 +177,7 @@ class SendSession:
         self._pacing: FacePacing | None = None
         #: the picture layer where the call sends one (``_layer_rate``), once the header is
         self.picture: PictureLayer | None = None
+        self._layer_counts: tuple[int, int] | None = None  # packets and bits of the layers stopped; None: none ran
         self._basis: np.ndarray | None = None
         self.sealer = None if config.key is None else SecureSealer(config.key, config.tag_bits)
         reference = model.picture
@@ -262,7 +263,7 @@ class SendSession:
             results = chain(first, results)
         if self._preview and self.config.bitrate is not None:  # (a preview is only made with a bitrate)
             self._pacing = FacePacing(self.encoder, len(self._model), self.config.bitrate, self.source.fps,
-                                      self.sealed)
+                                      self.sealed, rounds=self.config.datagrams, preview=len(self._preview))
         for seq, result in enumerate(results):
             if seq == 0:
                 header = self._seal(self.encoder.header(model=self._pacing is None))
@@ -277,7 +278,11 @@ class SendSession:
                 if self._dump is None:
                     self._dump = dump_writer(self._dump_path, len(self.header.names))
                 self._dump.add(**dump_row(result))
-            self._follow_link()
+            report = self._follow_link()
+            if self._pacing is not None:
+                self._pacing.hear(report)
+                if not self._pacing.done and self.picture is not None:  # a receiver that lacks the face joined
+                    self._stop_layer()
             repeats_before = 0 if self.datagrams is None else self.datagrams.repeated
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
             if self._keeper is not None:  # on the frames' bits: the repeats' share was taken off its aim
@@ -288,9 +293,10 @@ class SendSession:
                 packets = self._seal(self.picture.step(seq, result.frame, drawn_from, self.encoder, packets)) + packets
             if self._pacing is not None:
                 packets = self._seal(self._pacing.step(8 * stream_size(packets, self.sealed))) + packets
-                if self._pacing.drained:  # the receiver holds the face: the layer from the next frame
+                if self._pacing.drained and self.picture is None:  # the receiver holds the face: the layer next
                     self._start_layer(self._pacing.recent)
-                    self._pacing = None
+                    if not self.config.datagrams:  # (over datagrams a receiver may join that lacks it)
+                        self._pacing = None
             self.stream_bytes += stream_size(packets, self.sealed)
             if packets:
                 yield packets
@@ -299,22 +305,39 @@ class SendSession:
     def _start_layer(self, recent: Sequence[int] = ()) -> None:
         """The picture layer from the next frame on; ``recent``: the bits of the frames before it."""
         if self._layer_rate is not None:
+            self._layer_counts = self._layer_counts or (0, 0)
             self.picture = PictureLayer(self._face, self.header, self._layer_rate, self.sealed,
                                         self.config.datagrams, recent)
 
-    def _follow_link(self) -> None:
+    def _stop_layer(self) -> None:
+        """No picture layer from this frame on (its packets and bits stay counted)."""
+        if self.picture is not None:
+            self.picture.close()
+            self._layer_counts = self._layer_totals()
+            self.picture = None
+
+    def _layer_totals(self) -> tuple[int, int] | None:
+        """(packets, bits) of the picture layer in the call so far; None where none ran."""
+        if self._layer_counts is None:
+            return None
+        packets, bits = self._layer_counts
+        return (packets, bits) if self.picture is None else (packets + self.picture.packets, bits + self.picture.bits)
+
+    def _follow_link(self) -> Report | None:
         """Over datagrams, with the receiver's reports and no key: the copies, a frame a datagram and a
         keyframe at every key place while it loses datagrams or may; none, STREAM_FRAMES (or the frames
-        a packet asked) and a keyframe every LEAN_KEYS places while it does not."""
+        a packet asked) and a keyframe every LEAN_KEYS places while it does not. The report heard, if any."""
         if self.feedback is None or self.datagrams is None or self.sealer is not None:
-            return
-        self._link.hear(self.feedback())
+            return None
+        report = self.feedback()
+        self._link.hear(report)
         lean = self._link.lean
         self.datagrams.copies = 0 if lean else self.config.redundancy
         self.encoder.frames_per_packet = self.config.frames_per_packet or (STREAM_FRAMES if lean else DATAGRAM_FRAMES)
         self.encoder.key_every = LEAN_KEYS if lean else 1
         self.datagrams.joined = self._link.heard
         self.lean_frames += lean
+        return report
 
     def _check_room(self, quality: int, sample: Sequence[tuple[np.ndarray, bool]]) -> None:
         """Over datagrams, where the parameters as they go (their first second ``sample`` at ``quality``,
@@ -369,6 +392,7 @@ class SendSession:
         n = self.frame_count
         bits = 8 * self.stream_bytes / max(n, 1)
         rest = self.analyser.rest
+        layer = self._layer_totals()
         return {"frames": n, "frames_without_face": self.analyser.frames_without_face,
                 "quality": self.header.quality,
                 "bits_per_frame": round(bits, 1), "kbit_per_s": round(bits * self.source.fps / 1000, 3),
@@ -377,8 +401,8 @@ class SendSession:
                 "rest_frame": None if rest is None else rest.index,
                 "tag_bits": None if self.sealer is None else 8 * self.sealer.tag_bytes,
                 "lean_frames": self.lean_frames,
-                "picture_packets": None if self.picture is None else self.picture.packets,
-                "picture_bits_per_frame": None if self.picture is None else round(self.picture.bits / max(n, 1), 1),
+                "picture_packets": None if layer is None else layer[0],
+                "picture_bits_per_frame": None if layer is None else round(layer[1] / max(n, 1), 1),
                 "frames_per_second": round(n / max(time.perf_counter() - self._started, 1e-9), 1)}
 
     def summary(self) -> str:

@@ -8,7 +8,9 @@ import pytest
 import facedeform
 from facedeform.codec.face_file.format import decode_face, preview_face
 from facedeform.common.errors import BitstreamError, InputError
-from facedeform.protocol.stream import Frame, Model, StreamDecoder
+from facedeform.protocol.framing import MODEL, PICTURE, SYNC, packet_type
+from facedeform.protocol.report import Report
+from facedeform.protocol.stream import DatagramDecoder, Frame, Model, StreamDecoder
 from facedeform.receiver.session import ReceiveSession
 from facedeform.sender.config import SendConfig
 from facedeform.sender.session import SendSession
@@ -104,9 +106,8 @@ def test_a_call_cut_before_its_face_came_keeps_its_frames(paced):
 @pytest.mark.parametrize("options, message", [
     ({"paced_face": True}, "within a --bitrate"),
     ({"paced_face": True, "bitrate": 4000, "embed_face": False}, "not with --face-by-id"),
-    ({"paced_face": True, "bitrate": 4000, "datagrams": True}, "over udp:// the face goes before"),
 ])
-def test_a_paced_face_needs_a_rate_and_a_byte_stream(options, message):
+def test_a_paced_face_needs_a_rate_and_the_face_in_the_stream(options, message):
     with pytest.raises(InputError, match=message):
         SendConfig(**options)
 
@@ -130,3 +131,69 @@ def test_fd_send_says_what_a_paced_face_goes_with(tmp_path):
                            (["--paced-face", "--face", str(tmp_path / "x.fdface")], b"goes with --bitrate")):
         result = run(SEND + [str(CLIP)] + extra)
         assert result.returncode == 2 and message in result.stderr and b"Traceback" not in result.stderr
+
+
+def kind(datagram: bytes) -> int | None:
+    """MODEL, PICTURE... of a datagram that is one packet of its own; None for frames datagrams."""
+    return packet_type(datagram[1]) if datagram[0] == SYNC and len(datagram) > 1 else None
+
+
+def udp_call(face, lose=(), join=0, reports=True, held=False) -> tuple[list[list[bytes]], list, DatagramDecoder]:
+    """The sample looped to SECONDS with its face paced at RATE over datagrams, to a receiver that loses
+    the datagrams whose indices are in ``lose``, hears none before the ``join``-th, holds the face
+    already if ``held`` and, with ``reports``, reports back after every frame as fd-recv does every
+    half second: (the datagrams of each step, the receiver's events, its decoder)."""
+    session = SendSession(LoopedSource(str(CLIP), SECONDS),
+                          SendConfig(bitrate=RATE * 1000, paced_face=True, datagrams=True), face=face)
+    decoder, events, count = DatagramDecoder(), [], [0]
+    if held:
+        decoder.hold_model()
+    if reports:
+        session.feedback = lambda: Report(count[0], decoder.stats.repaired, decoder.stats.concealed,
+                                          decoder.model_missing) if count[0] > join else None
+    steps = []
+    for datagrams in session.packets():
+        steps.append(datagrams)
+        for datagram in datagrams:
+            if count[0] >= join and count[0] not in lose:
+                events += decoder.receive(datagram)
+            count[0] += 1
+    session.close()
+    return steps, events, decoder
+
+
+def test_over_udp_a_lost_chunk_comes_again_and_the_layer_starts_once_the_receiver_holds_the_face(face):
+    steps, _, _ = udp_call(face)
+    flat = [d for step in steps for d in step]
+    chunks = [i for i, d in enumerate(flat) if kind(d) == MODEL]
+    steps, events, decoder = udp_call(face, lose={chunks[3]})
+    whole = [e.data for e in events if isinstance(e, Model) and not e.preview]
+    assert whole == [face.data] and decoder.model_missing == len(preview_face(face.model)) + len(face.data)
+    flat = [d for step in steps for d in step]
+    sent = [i for i, d in enumerate(flat) if kind(d) == MODEL]
+    assert len(sent) > len(chunks)  # the lost chunk again, and no more rounds once it is held
+    assert len(sent) < 2 * len(chunks)
+    layer = [i for i, d in enumerate(flat) if kind(d) == PICTURE]
+    assert layer and layer[0] > sent[-1]  # the layer after the face, which the receiver then holds
+    frames = [e for e in events if isinstance(e, Frame)]
+    assert len(frames) == round(SECONDS * 25) and not any(f.concealed for f in frames)
+
+
+def test_over_udp_a_receiver_that_joins_late_gets_the_face_in_the_next_round(face):
+    """Without reports (a one-way link) the face goes round the whole call; a receiver that joins after
+    the first round has the header from its repeats and the face from a later round."""
+    steps, _, _ = udp_call(face, reports=False)
+    flat = [d for step in steps for d in step]
+    chunks = [i for i, d in enumerate(flat) if kind(d) == MODEL]
+    first_round = next(i for i, c in enumerate(chunks) if i and flat[c] == flat[chunks[0]])  # the first again
+    assert not any(kind(d) == PICTURE for d in flat)  # no layer while the face may be lacking
+    _, events, decoder = udp_call(face, join=chunks[first_round - 1] + 1, reports=False)
+    assert [e.data for e in events if isinstance(e, Model) and not e.preview] == [face.data]
+
+
+def test_over_udp_a_receiver_that_holds_the_face_stops_it_at_its_first_report(face):
+    steps, events, _ = udp_call(face, held=True)
+    flat = [d for step in steps for d in step]
+    sent = [i for i, d in enumerate(flat) if kind(d) == MODEL]
+    assert len(sent) <= 2 and not any(isinstance(e, Model) for e in events)  # the first frame's chunks at most
+    assert any(kind(d) == PICTURE for d in flat)

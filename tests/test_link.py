@@ -30,11 +30,13 @@ def test_a_lost_datagram_made_good_by_the_copies_counts_as_repaired_and_a_clean_
 
 
 def test_a_report_reads_back_and_anything_else_is_not_one():
-    report = Report(2 ** 32 + 7, 3, 12)
+    report = Report(2 ** 32 + 7, 3, 12, 900)
     data = encode_report(report)
-    assert len(data) == SIZE and parse_report(data) == Report(7, 3, 12)
-    for junk in (b"", data[:-1], data + b"\0", b"FDLX" + data[4:], data[:4] + b"\x02" + data[5:]):
+    assert len(data) == SIZE and parse_report(data) == Report(7, 3, 12, 900)
+    for junk in (b"", data[:-1], data + b"\0", b"FDLX" + data[4:], data[:4] + b"\x03" + data[5:]):
         assert parse_report(junk) is None
+    first = data[:4] + b"\x01" + data[5:-4]  # version 1 says nothing of the face
+    assert parse_report(first) == Report(7, 3, 12, None)
     assert Report(3, 2 ** 32 - 1, 5).lost_since(Report(1, 2 ** 32 - 2, 5)) == 1  # counts wrap
 
 

@@ -163,6 +163,17 @@ def test_a_receiver_joining_late_renders_from_the_keyframe_after_the_header():
     np.testing.assert_allclose([f.params for f in got], sent[first:], atol=1e-9)
 
 
+def test_a_receiver_joining_late_reports_no_loss_wherever_it_joins():
+    """Its first keyframe may come as a copy in a later datagram (the keyframe's own came before it
+    joined): not a repair, or its first report would tell the sender the link loses (sender/link.py:
+    20 s at the full cost)."""
+    stream, _ = stream_datagrams(smooth_tracks(), COPIES, eager=0, header_every=0)
+    for start in range(len(stream) // 3, len(stream) // 3 + KEY // 2):  # a key's datagrams and more
+        dec = DatagramDecoder([header()])
+        got = receive(dec, stream[start:])
+        assert got[-1].seq == N - 1 and dec.stats.repaired == dec.stats.concealed == 0, start
+
+
 def test_a_sealed_stream_can_be_joined_late_too():
     """The preamble goes again with the header; copies of it are ignored once one is taken."""
     stream, sent = stream_datagrams(smooth_tracks(), header_every=1, sealer=SecureSealer(b"k" * 32))

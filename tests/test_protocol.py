@@ -336,6 +336,24 @@ def test_a_preview_face_comes_first_and_the_model_between_frames():
     assert not dec.stats.damaged
 
 
+def test_a_face_going_round_is_taken_in_any_order():
+    """Over datagrams a paced face goes round (sender/face_pacing.py): a receiver that joined late, or
+    lost a chunk, takes the model's chunks from anywhere in it, some twice; the preview and the model
+    are each handed over once, as soon as they are whole."""
+    preview, model = bytes(range(256)) * 3, bytes(range(255, -1, -1)) * 12
+    size = len(preview) + len(model)
+    h = header(model_size=size, preview_size=len(preview))
+    enc = PacketEncoder(h, model=preview + model)
+    offsets = list(range(1500, size, 500)) + list(range(0, size, 500))  # joined in the first round's middle
+    packets = enc.header(model=False)
+    for offset, x in zip(offsets, walk(len(offsets), 13)):
+        packets += enc.frame(x, True) + [enc.model_chunk(offset, min(500, size - offset))]
+    events, dec = decode(frame_bytes(packets + enc.end()), chunk=11)
+    models = [(e.preview, e.data) for e in events if isinstance(e, Model)]
+    assert models == [(True, preview), (False, model)] and dec.model_missing == size
+    assert dec.stats.duplicates == 5 and not dec.stats.damaged  # the five chunks from 1500 on came twice
+
+
 def test_a_preview_must_be_part_of_the_model():
     for model_size, preview_size in ((100, 100), (0, 10), (100, 200)):
         with pytest.raises(ValueError, match="out of range"):
