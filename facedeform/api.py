@@ -30,7 +30,7 @@ def enroll(video: str | PathLike, **options) -> Face:
     """The face model of the person in ``video`` (a video file, an image directory or a %d
     pattern), to share before a call: their mesh, reference picture, open mouth and motion
     basis. Options (``sender.enrolment.enroll_face``): frame, seconds, motion, motion_over,
-    motion_seconds, picture, texture_size. ``Face.save(path)`` writes what fd-enroll writes."""
+    motion_seconds, picture, texture_size, budget. ``Face.save(path)`` writes what fd-enroll writes."""
     from facedeform.sender.enrolment import enroll_face
 
     return enroll_face(_path(video, "video"), **options).face

@@ -4,6 +4,7 @@
 import argparse
 import sys
 
+from facedeform.codec.face_file.format import BUDGET, COARSEST_CRF, HD_BUDGET, PICTURE_FORMAT, QUALITY
 from facedeform.common.cli import ArgumentParser, check_output, number, run_main
 from facedeform.common.parameters import MAX_COMPONENTS
 from facedeform.sender.enrolment import MOTION_PATTERNS, TEXTURE_SIDES, TEXTURE_SIZE
@@ -48,6 +49,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--no-picture", action="store_true",
                    help="leave out the reference picture (the whole neutral frame, AV1; docs/picture.md): "
                         "the receiver then draws the face alone")
+    p.add_argument("--budget", type=int, metavar="BYTES",
+                   help=f"the face model's most bytes, as far as a coarser reference picture can make it so (AV1 "
+                        f"CRF {QUALITY[PICTURE_FORMAT]} up to {COARSEST_CRF}); default {BUDGET:,}, {HD_BUDGET:,} "
+                        f"for a picture over 640x480: a 256x256 call's face in the stream within about 20 s at 4 "
+                        "kbit/s; 0: no budget, the picture at its finest")
     p.add_argument("--key", metavar="FILE",
                    help="encrypt the face model at rest with this key (fd-keygen); fd-send and fd-recv open it "
                         "with the same --key")
@@ -59,6 +65,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error(f"--texture-size must be {TEXTURE_SIDES[0]} to {TEXTURE_SIDES[1]}")
     if not 0 <= args.motion <= MAX_COMPONENTS:
         p.error(f"--motion must be 0 to {MAX_COMPONENTS}")
+    if args.budget is not None and args.budget < 0:
+        p.error("--budget takes a number of bytes, or 0 for none")
     return args
 
 
@@ -79,7 +87,7 @@ def _run(args) -> int:
         if progress else None
     try:
         made = enroll_face(args.input, args.frame, args.seconds, args.motion, args.motion_over, args.motion_seconds,
-                           not args.no_picture, args.texture_size, update)
+                           not args.no_picture, args.texture_size, update, args.budget)
     finally:
         if progress:
             progress.close()

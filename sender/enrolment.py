@@ -69,7 +69,7 @@ class Enrolment:
 
 def enroll_face(video, frame: int | None = None, seconds: float = 2.0, motion: int = MOTION_PATTERNS,
                 motion_over: str = "rest", motion_seconds: float = 60.0, picture: bool = True,
-                texture_size: int = TEXTURE_SIZE, on_frame=None) -> Enrolment:
+                texture_size: int = TEXTURE_SIZE, on_frame=None, budget: int | None = None) -> Enrolment:
     """The face model of the person in ``video`` (a video file, an image directory or a %d
     pattern: it is read twice, ``sender.sources.open_source``).
 
@@ -77,7 +77,9 @@ def enroll_face(video, frame: int | None = None, seconds: float = 2.0, motion: i
     one with the mouth most closed and the head nearest frontal); motion: most patterns in the
     motion basis (0: none), learned from the first ``motion_seconds`` over ``motion_over``
     ("rest" or "paper", codec/model/motion_basis.py); picture: keep the reference picture (else only a
-    texture of ``texture_size`` texels a side); on_frame(done, total): progress of the motion pass.
+    texture of ``texture_size`` texels a side); on_frame(done, total): progress of the motion pass;
+    budget: the file's most bytes, as far as a coarser picture can (None: 10,000, 20,000 for an HD
+    picture; 0: none; ``codec.face_file.format.within_budget``).
     Caller mistakes are ValueError; a clip that cannot be read or shows no face, FdError.
     """
     if frame is not None and frame < 0:
@@ -104,7 +106,7 @@ def enroll_face(video, frame: int | None = None, seconds: float = 2.0, motion: i
         ref = replace(ref, ring_weights=rings)
     if ref is not None and shut is not None and (eyes := shut.laid_on(first, found.landmarks)) is not None:
         ref = replace(ref, shut_eyes=eyes[0], shut_eyes_at=eyes[1])
-    face = Face(personal_face(found.aligned, texture, base, basis, ref))
+    face = Face(personal_face(found.aligned, texture, base, basis, ref, budget))
     return Enrolment(face, found.index, found.score[0], found.score[1],
                      0 if basis is None else basis.components, frames)
 

@@ -164,3 +164,21 @@ def test_the_speakers_shut_eyes_come_from_a_blink_not_from_a_look_down():
     assert kept([1, 1, 0.2, 0.9, 1, 0.1, None, None, None]) == 2  # the face lost before the eyes opened
     assert kept([1, 1, 0.9, 0.85, 0.9, 1]) is None  # a flicker, not a blink
     assert kept([1, 1, 0.2, 1, 1], turned) is None  # a blink with the head turned: not laid on a frontal face
+
+
+def test_a_budget_takes_a_coarser_picture_and_a_negative_one_is_refused(tmp_path, capsys):
+    """The bundled clip's face is within the default budget; one of 1 byte takes the coarsest picture
+    and keeps everything else."""
+    files = {}
+    for budget in ("0", "1"):
+        files[budget] = tmp_path / f"{budget}.fdface"
+        assert main([str(CLIP), "-o", str(files[budget]), "--frame", "3", "--motion", "0", "--budget", budget]) == 0
+    fine, coarse = (Face.load(files[b]).model for b in ("0", "1"))
+    assert files["1"].stat().st_size < files["0"].stat().st_size
+    np.testing.assert_array_equal(fine.vertices, coarse.vertices)
+    np.testing.assert_array_equal(fine.picture.mouth, coarse.picture.mouth)
+    assert np.abs(fine.picture.image.astype(float) - coarse.picture.image).mean() > 0.5
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit:
+        main([str(CLIP), "-o", str(tmp_path / "x.fdface"), "--budget", "-1"])
+    assert exit.value.code == 2 and "--budget takes a number of bytes" in capsys.readouterr().err

@@ -10,6 +10,9 @@ import pytest
 
 from facedeform.codec.face_file.format import (
     _PACKING,
+    BUDGET,
+    COARSEST_CRF,
+    HD_BUDGET,
     MESH_STEPS,
     Face,
     decode_face,
@@ -17,6 +20,7 @@ from facedeform.codec.face_file.format import (
     encode_face,
     personal_face,
     save_face_file,
+    within_budget,
 )
 from facedeform.codec.model.deform import Deformer
 from facedeform.codec.render.picture import Placement
@@ -265,6 +269,25 @@ def test_the_open_mouth_round_trips():
     face = decode_face(encode_face(person, picture_format=".png"))
     np.testing.assert_array_equal(face.picture.mouth, picture.mouth)
     np.testing.assert_allclose(face.picture.mouth_points, picture.mouth_points)
+
+
+@pytest.mark.parametrize("side, budget", [(256, BUDGET), (800, HD_BUDGET)])
+def test_a_face_over_its_budget_takes_a_coarser_picture_and_keeps_its_parts(side, budget):
+    """fd-enroll's face file: a picture of plain gradients as it is; one of noise, which no CRF brings
+    within the budget, at COARSEST_CRF and no coarser; the open mouth stays as it was either way."""
+    neutral, texture = a_person()
+    person = replace(decode_face(personal_face(neutral, texture)), picture=a_picture_with_a_mouth())
+    assert within_budget(person) == encode_face(person)
+    rng = np.random.default_rng(0)
+    detail = replace(person.picture, image=np.kron(rng.integers(0, 256, (side // 4, side // 4, 3)),
+                                                   np.ones((4, 4, 1))).astype(np.uint8))
+    busy = replace(person, picture=detail)
+    assert len(encode_face(busy)) > budget
+    data = within_budget(busy)
+    assert data == encode_face(busy, picture_quality=COARSEST_CRF) and len(data) > budget
+    got = decode_face(data).picture
+    np.testing.assert_array_equal(got.mouth, decode_face(encode_face(busy)).picture.mouth)
+    assert got.image.shape == detail.image.shape
 
 
 @pytest.mark.parametrize("changes, message", [

@@ -141,6 +141,12 @@ PICTURE_FORMAT = ".av1"
 PARTS_FORMAT = ".webp"
 #: Each image format's quality unless told (AV1: SVT-AV1's CRF, finer lower; PNG is lossless).
 QUALITY = {".av1": 28, ".webp": 80, ".jpg": 90, ".png": 0}
+#: The most bytes of a face file :func:`personal_face` makes (fd-enroll's), as far as a coarser picture
+#: can make it so: at 256x256 a face at 4 kbit/s in the stream within about 20 s; HD_BUDGET where the
+#: picture has more than HD_PIXELS. Over it, the picture's CRF rises by 2 up to COARSEST_CRF (at CRF 40
+#: sadtalker_WDA_KatieHill's whole picture was as at 28, its face 2.7 KB smaller: docs/face_file.md).
+BUDGET, HD_BUDGET, HD_PIXELS = 10_000, 20_000, 640 * 480
+COARSEST_CRF = 40
 #: A preview face's (:func:`preview_face`) vertices in steps of 1/256 of the face's height (a vertex off by
 #: at most 0.3 pixels of a 256x256 crop's face), and its picture's AV1 CRF.
 PREVIEW_MESH_STEPS = 256
@@ -162,7 +168,8 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
                 picture_format: str | None = None, picture_quality: int = 0, mesh_steps: int = MESH_STEPS) -> bytes:
     """A face file's bytes; ``face.texture`` (RGB) goes in as ``texture_format`` (.jpg or .png),
     ``face.picture``'s images as ``picture_format`` (.av1, .webp, .jpg or .png) at ``picture_quality``
-    (0: the format's QUALITY), or by default the picture as PICTURE_FORMAT and its parts as PARTS_FORMAT;
+    (0: the format's QUALITY), or by default the picture as PICTURE_FORMAT (at ``picture_quality``) and
+    its parts as PARTS_FORMAT;
     the vertices in steps of 1/``mesh_steps`` of the face's height.
 
     The same face gives the same bytes (and id); a JPEG texture loaded and
@@ -175,7 +182,7 @@ def encode_face(face: BaseFace, texture_format: str = ".jpg", quality: int = 90,
     if face.picture is not None:
         image = face.picture.image
         picture = _encode_image(image, picture_format or PICTURE_FORMAT, picture_quality, "reference picture")
-        parts = (picture_format or PARTS_FORMAT, picture_quality)
+        parts = (picture_format, picture_quality) if picture_format else (PARTS_FORMAT, 0)
         info["picture"] = [len(picture), image.shape[1], image.shape[0]]
         numbers.append(np.ascontiguousarray(face.picture.projection, dtype="<f8").tobytes())
         if face.picture.ring_weights is not None:
@@ -266,7 +273,7 @@ def _encode_image(rgb: np.ndarray, ext: str, quality: int, what: str) -> bytes:
 
 def personal_face(neutral: np.ndarray, texture: np.ndarray | None = None,
                   base: BaseFace | None = None, motion: MotionBasis | None = None,
-                  picture: ReferencePicture | None = None) -> bytes:
+                  picture: ReferencePicture | None = None, budget: int | None = None) -> bytes:
     """A face file from a person's (468, 3) pose-free neutral landmarks (base-face axes, e.g.
     ``sender.pose`` output), an optional (h, w, 3) uint8 RGB texture in ``base``'s UV layout,
     an optional motion basis and an optional reference picture (its projection takes the
@@ -274,7 +281,7 @@ def personal_face(neutral: np.ndarray, texture: np.ndarray | None = None,
 
     The landmarks become the vertices, normalised as the base face is (face
     height 1, bounding box centred), so the receiver's framing fits; topology,
-    UVs and feature points are ``base``'s (default: the generic face).
+    UVs and feature points are ``base``'s (default: the generic face); ``budget``: :func:`within_budget`'s.
     """
     base = base or load_base_face()
     neutral = np.asarray(neutral, dtype=np.float64)
@@ -284,7 +291,23 @@ def personal_face(neutral: np.ndarray, texture: np.ndarray | None = None,
         raise InputError(f"a face texture must be (h, w, 3) uint8, got {texture.dtype} {texture.shape}")
     person = build_face(normalise(neutral), base.faces, base.uv, base.meta, "", texture, motion=motion,
                         picture=picture)
-    return encode_face(person)
+    return within_budget(person, budget)
+
+
+def within_budget(face: BaseFace, budget: int | None = None) -> bytes:
+    """``face``'s file with its reference picture at the AV1 CRF of QUALITY or, while the file is over
+    ``budget`` bytes (None: BUDGET, HD_BUDGET for an HD picture; 0: no budget), coarser by 2 up to
+    COARSEST_CRF."""
+    data = encode_face(face)
+    if face.picture is None or budget == 0:
+        return data
+    h, w = face.picture.image.shape[:2]
+    budget = budget or (HD_BUDGET if h * w > HD_PIXELS else BUDGET)
+    crf = QUALITY[PICTURE_FORMAT]
+    while len(data) > budget and crf < COARSEST_CRF:
+        crf += 2
+        data = encode_face(face, picture_quality=crf)
+    return data
 
 
 def decode_face(data: bytes, origin: str = "face model") -> BaseFace:

@@ -31,9 +31,10 @@ OVER = ("rest", "paper")  # what the patterns are displacements from
 #: The most steps a face file gives a pattern's unit move (a vertex coordinate in a signed byte).
 MOST_STEPS = 127
 #: Steps per unit of the largest coefficient the enrolment clip gave a pattern: at that coefficient a vertex
-#: is then off by at most 1 / (2 REACH_STEPS) of the face's height, a quarter of a coefficient's own
-#: rounding at the default level (steps of 1/250).
-REACH_STEPS = 1024
+#: is then off by at most 1 / (2 REACH_STEPS) of the face's height, half a coefficient's own rounding at
+#: the default level (steps of 1/250). 1024 (a quarter) had cost the nine dev clips' faces 1.1-1.5 KB more
+#: (docs/face_file.md) for a whole picture within 0.02 dB on eight of them.
+REACH_STEPS = 512
 LEAST_STEPS = 4
 
 
