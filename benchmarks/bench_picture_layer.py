@@ -8,6 +8,11 @@ picture packets per second, PSNR (mean of R, G, B; mean and 5th percentile over 
 crop, the sender's frames per second (tracking, fit, coding and its closed loop) and the
 receiver's (decoding and drawing, the layer included), one thread each.
 
+With ``--udp``, each rate also as fd-send sends it to ``udp://`` (a frame a datagram with copies
+until the receiver reports a clean link, then lean: sender/link.py), to fd-recv's own datagram
+decoder and drawing, reporting every 0.5 s of the call on a link that loses nothing: kbit/s
+counts every datagram after the header.
+
     .venv/bin/python benchmarks/bench_picture_layer.py /path/to/dev/*.mp4 --rates 1.5 4 10 30 --out results/
 """
 
@@ -22,7 +27,9 @@ import facedeform
 from facedeform.common.parameters import MAX_COMPONENTS
 from facedeform.experiment.clips import crops
 from facedeform.experiment.metrics import psnr_rgb
-from facedeform.protocol.stream import frame_bytes
+from facedeform.protocol.report import REPORT_EVERY, Report
+from facedeform.protocol.stream import DatagramDecoder, frame_bytes
+from facedeform.receiver.session import ReceiveSession
 from facedeform.sender.config import SendConfig
 from facedeform.sender.session import SendSession
 
@@ -45,6 +52,44 @@ def run(clip, face, kbps: float | None) -> dict:
     started = time.perf_counter()
     drawn = list(facedeform.decode(chunks, face))
     receive_s = time.perf_counter() - started
+    return measured(clip, session, kbps, per_frame, drawn, send_s, receive_s)
+
+
+def run_udp(clip, face, kbps: float) -> dict:
+    """As :func:`run`, over datagrams to a receiver that reports a clean link (the two ends' times
+    together, as sender fps; receiver fps not measured)."""
+    session = SendSession(str(clip.path), SendConfig(bitrate=1000 * kbps, embed_face=False, datagrams=True),
+                          face=face, warn=lambda line: None)
+    decoder, drawn, heard, last = DatagramDecoder(), [], 0, -REPORT_EVERY
+    decoder.hold_model()  # (what fd-recv --face tells its decoder)
+
+    def feedback() -> Report | None:
+        nonlocal last
+        now = session.frame_count / clip.fps
+        if decoder.header is None or now - last < REPORT_EVERY:
+            return None
+        last = now
+        return Report(heard, decoder.stats.repaired, decoder.stats.concealed, decoder.model_missing)
+
+    class Keep:
+        write, close = drawn.append, staticmethod(lambda: None)
+
+    session.feedback = feedback
+    receiver = ReceiveSession(lambda fps, size: [Keep()], None, face.model, warn=lambda line: None)
+    started, per_frame = time.perf_counter(), []
+    for i, datagrams in enumerate(session.packets()):
+        if i:  # after the header
+            per_frame += [0] * (session.frame_count - len(per_frame))
+            per_frame[-1] += 8 * sum(map(len, datagrams))
+        for datagram in datagrams:
+            heard += 1
+            receiver.handle(decoder.receive(datagram), 0.0)
+    receiver.close()
+    return measured(clip, session, kbps, per_frame, drawn, time.perf_counter() - started, None) | \
+        {"setting": f"{kbps:g}k udp", "lean_frames": session.lean_frames}
+
+
+def measured(clip, session, kbps, per_frame, drawn, send_s, receive_s) -> dict:
     n, window = len(clip.frames), max(1, round(WINDOW * clip.fps))
     bits = np.array(per_frame, dtype=np.float64)
     psnr = psnr_rgb(clip.frames, drawn)
@@ -55,7 +100,7 @@ def run(clip, face, kbps: float | None) -> dict:
             float(np.convolve(bits, np.ones(window), "valid").max() / (1000 * kbps * WINDOW)),
             "packets_per_s": (stats["picture_packets"] or 0) * clip.fps / n,
             "psnr": float(psnr.mean()), "psnr_p5": float(np.percentile(psnr, 5)),
-            "sender_fps": n / send_s, "receiver_fps": n / receive_s}
+            "sender_fps": n / send_s, "receiver_fps": None if receive_s is None else n / receive_s}
 
 
 def main() -> None:
@@ -63,6 +108,7 @@ def main() -> None:
     p.add_argument("clips", nargs="+", type=Path)
     p.add_argument("--rates", type=float, nargs="+", default=[1.5, 4, 10, 30], metavar="KBPS")
     p.add_argument("--out", type=Path, default=Path("results"))
+    p.add_argument("--udp", action="store_true", help="each rate also over udp:// to a receiver that reports")
     args = p.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -72,6 +118,9 @@ def main() -> None:
         for kbps in [None, *args.rates]:
             rows.append(row := run(clip, face, kbps))
             print(json.dumps(row), flush=True)
+            if args.udp and kbps is not None:
+                rows.append(row := run_udp(clip, face, kbps))
+                print(json.dumps(row), flush=True)
     (args.out / "picture_layer.json").write_text(json.dumps(rows, indent=1) + "\n")
     print("| setting | kbit/s | largest 2 s window / rate | picture packets/s | PSNR dB (5th pct.) | sender fps "
           "| receiver fps |")
@@ -79,8 +128,8 @@ def main() -> None:
     for setting in dict.fromkeys(r["setting"] for r in rows):
         same = [r for r in rows if r["setting"] == setting]
         ratio = [r["window_ratio"] for r in same if r["window_ratio"] is not None]
-        mean = {k: np.mean([r[k] for r in same]) for k in ("kbit_per_s", "packets_per_s", "psnr", "psnr_p5",
-                                                           "sender_fps", "receiver_fps")}
+        mean = {k: np.mean([r[k] or np.nan for r in same]) for k in ("kbit_per_s", "packets_per_s", "psnr",
+                                                                     "psnr_p5", "sender_fps", "receiver_fps")}
         print(f"| {setting} | {mean['kbit_per_s']:.2f} | {max(ratio):.3f} | {mean['packets_per_s']:.1f} | " if ratio
               else f"| {setting} | {mean['kbit_per_s']:.2f} | - | - | ", end="")
         print(f"{mean['psnr']:.2f} ({mean['psnr_p5']:.2f}) | {mean['sender_fps']:.0f} | {mean['receiver_fps']:.0f} |")

@@ -69,6 +69,9 @@ SIDES = ((2_048, 0.25), (20_000, 0.5), (float("inf"), 1.0))
 #: layer again from the next one. Byte streams (files, pipes, TCP) lose nothing and start at the
 #: beginning, so they send one key only.
 KEY_EVERY = 1.0
+#: The same while the receiver reports a link that loses nothing (sender/link.py: the session sets
+#: :attr:`PictureLayer.key_every`): at 4 kbit/s a key a second had taken most of the layer's share.
+LEAN_KEY_EVERY = 4.0
 #: The sender chooses the layer's blocks on the pictures shrunk by a whole number that divides BLOCK and
 #: both sides, as far as they stay at least the video's size and their larger side at least this many
 #: pixels: at 1920x1080 with a 960x540 video by 2 (a block is then 16x16 pixels). The receiver draws the
@@ -158,7 +161,9 @@ class PictureLayer:
         self._blocks_bits = BLOCKS_SHARE * layer / header.fps  # a frame's share for blocks only
         self._saved = 0.0  # bits saved for blocks only
         self._size = 8.0 * SMALLEST  # bits of a video packet, a running mean
-        self._key_every = KEY_EVERY * header.fps if datagrams else None
+        self._key_size = 0.0  # bits of a key's packets, a running mean
+        #: seconds between keys (None: the first only)
+        self.key_every: float | None = KEY_EVERY if datagrams else None
         self._last_key: int | None = None
         self._last_video: int | None = None  # the last frame a video frame went with
         self._last: int | None = None  # the last frame stepped
@@ -175,8 +180,10 @@ class PictureLayer:
         model = self._look.model_picture(params, seq)  # at the size the choice is made at
         packets: list[bytes] = []
         room = self._room(spent)
-        key = self._last_key is None or (  # within KEY_EVERY, on a frame the video is sent
-            self._key_every is not None and seq - self._last_key > self._key_every - self._every)
+        since = None if self._last_key is None else (seq - self._last_key + self._every) / self._fps
+        key = since is None or (  # after key_every, once the window has room for it (or twice that at most)
+            self.key_every is not None and since > self.key_every and (
+                room >= self._key_size or since > 2 * self.key_every))
         self._parameter_bits += (spent - self._parameter_bits) / PARAMETER_MEMORY
         share = (1 - BLOCKS_SHARE) * max(0.0, self._frame_bits - self._parameter_bits)
         self._credit = min(self._credit + share, BURST * share * self._fps)
@@ -247,6 +254,8 @@ class PictureLayer:
         if self._last_key is not None:  # the first key is the call's own: the window alone holds it
             self._size += (bits - self._size) / 4
             self._credit -= bits
+        if key:
+            self._key_size = bits if self._last_key is None else (self._key_size + bits) / 2
         self._last_key = seq if key else self._last_key
         self._last_video = seq
         return packets

@@ -2,6 +2,7 @@
 
 import sys
 import time
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
 from itertools import chain, islice
@@ -39,7 +40,7 @@ from facedeform.sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing, r
 from facedeform.sender.config import DATAGRAM_FRAMES, SPEAKER_RATE, STREAM_FRAMES, SendConfig, parameter_rate
 from facedeform.sender.face_pacing import FacePacing
 from facedeform.sender.link import LEAN_KEYS, LinkWatch
-from facedeform.sender.picture_layer import PictureLayer, layer_pays
+from facedeform.sender.picture_layer import KEY_EVERY, LEAN_KEY_EVERY, WINDOW, PictureLayer, layer_pays
 from facedeform.sender.pixel_pose import PixelPose, refines
 from facedeform.sender.sources import open_source
 
@@ -178,6 +179,8 @@ class SendSession:
         #: the picture layer where the call sends one (``_layer_rate``), once the header is
         self.picture: PictureLayer | None = None
         self._layer_counts: tuple[int, int] | None = None  # packets and bits of the layers stopped; None: none ran
+        #: over datagrams, the layer pays only without the copies: it runs while the link is lean (_check_room)
+        self._lean_layer = False
         self._basis: np.ndarray | None = None
         self.sealer = None if config.key is None else SecureSealer(config.key, config.tag_bits)
         reference = model.picture
@@ -202,6 +205,8 @@ class SendSession:
         self.feedback: Callable[[], Report | None] | None = None
         self._link = LinkWatch()
         self.lean_frames = 0  # frames sent lean: without copies, on a link that lost nothing
+        #: bits of the last frames sent (what a picture layer started mid-call finds in its window)
+        self._recent: deque[int] = deque(maxlen=max(1, round(WINDOW * self.source.fps)) - 1)
 
     @property
     def sealed(self) -> bool:
@@ -283,6 +288,10 @@ class SendSession:
                 self._pacing.hear(report)
                 if not self._pacing.done and self.picture is not None:  # a receiver that lacks the face joined
                     self._stop_layer()
+            if self._lean_layer and self.picture is not None and not self._link.lean:
+                self._stop_layer()  # the copies are back, and leave the layer too little
+            elif self._lean_layer and self.picture is None and self._pacing is None:
+                self._start_layer(self._recent)
             repeats_before = 0 if self.datagrams is None else self.datagrams.repeated
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
             if self._keeper is not None:  # on the frames' bits: the repeats' share was taken off its aim
@@ -298,13 +307,15 @@ class SendSession:
                     if not self.config.datagrams:  # (over datagrams a receiver may join that lacks it)
                         self._pacing = None
             self.stream_bytes += stream_size(packets, self.sealed)
+            self._recent.append(8 * stream_size(packets, self.sealed))
             if packets:
                 yield packets
         yield self.end()
 
     def _start_layer(self, recent: Sequence[int] = ()) -> None:
-        """The picture layer from the next frame on; ``recent``: the bits of the frames before it."""
-        if self._layer_rate is not None:
+        """The picture layer from the next frame on, where the call sends one and the link allows it;
+        ``recent``: the bits of the frames before it."""
+        if self._layer_rate is not None and (self._link.lean or not self._lean_layer):
             self._layer_counts = self._layer_counts or (0, 0)
             self.picture = PictureLayer(self._face, self.header, self._layer_rate, self.sealed,
                                         self.config.datagrams, recent)
@@ -336,14 +347,17 @@ class SendSession:
         self.encoder.frames_per_packet = self.config.frames_per_packet or (STREAM_FRAMES if lean else DATAGRAM_FRAMES)
         self.encoder.key_every = LEAN_KEYS if lean else 1
         self.datagrams.joined = self._link.heard
+        if self.picture is not None:
+            self.picture.key_every = LEAN_KEY_EVERY if lean else KEY_EVERY
         self.lean_frames += lean
         return report
 
     def _check_room(self, quality: int, sample: Sequence[tuple[np.ndarray, bool]]) -> None:
         """Over datagrams, where the parameters as they go (their first second ``sample`` at ``quality``,
         with their copies and keyframes and the header's repeats) leave the picture layer too little to
-        pay, it is not sent (on a byte stream they keep within their share); where they take more than
-        --bitrate, says so."""
+        pay, it runs only while the link is lean (no copies: the receiver reports no loss) where that
+        leaves it enough, else it is not sent (on a byte stream they keep within their share); where
+        they take more than --bitrate, says so."""
         bitrate, datagrams = self.config.bitrate, self.datagrams
         if bitrate is None:
             return
@@ -358,9 +372,17 @@ class SendSession:
         reference = self._face.picture
         if self._layer_rate is not None and reference is not None and datagrams is not None and \
                 not layer_pays(bitrate, reference.image.shape[1::-1], cost):
-            self._layer_rate = None
-            self._warn(f"the parameters take about {cost / 1000:.1f} of the {bitrate / 1000:g} kbit/s asked{over}: "
-                       "too little is left for the picture layer, which is not sent")
+            lean = sample_bits_per_second(header, sample, STREAM_FRAMES, self.config.dead_zone, 0, 0) + \
+                datagrams.repeat_rate(key_seconds(header))
+            if self.sealer is None and layer_pays(bitrate, reference.image.shape[1::-1], lean):
+                self._lean_layer = True
+                self._warn(f"the parameters take about {cost / 1000:.1f} of the {bitrate / 1000:g} kbit/s asked{over}: "
+                           f"the picture layer waits until fd-recv reports a link that loses nothing (about "
+                           f"{lean / 1000:.1f} then)")
+            else:
+                self._layer_rate = None
+                self._warn(f"the parameters take about {cost / 1000:.1f} of the {bitrate / 1000:g} kbit/s asked"
+                           f"{over}: too little is left for the picture layer, which is not sent")
         if cost > bitrate:
             self._warn(f"the parameters take about {cost / 1000:.1f} kbit/s at their coarsest{over}, more than "
                        f"the {bitrate / 1000:g} asked: the stream will go over it")

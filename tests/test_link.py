@@ -4,11 +4,15 @@ only while datagrams are lost."""
 import json
 import subprocess
 
+import pytest
+
+from facedeform.protocol.framing import PICTURE, SYNC, packet_type
 from facedeform.protocol.report import SIZE, Report, encode_report, parse_report
 from facedeform.protocol.stream import DatagramDecoder, Frame
 from facedeform.sender.config import SendConfig
 from facedeform.sender.link import AFTER_LOSS, CLEAN, LEAN_KEYS, QUIET, LinkWatch
 from facedeform.sender.session import SendSession
+from facedeform.sender.sources import LoopedSource
 from tests.support import CLIP, DEADLINE, ROOT, SEND, finish, smooth_tracks, start_listener, stream_datagrams
 
 
@@ -109,3 +113,33 @@ def test_fd_send_over_udp_sends_lean_while_fd_recv_reports_no_loss(tmp_path):
     unreported = call_over_udp(tmp_path, "--no-reports")
     assert unreported["lean_frames"] == 0 and reported["lean_frames"] >= 25
     assert reported["kbit_per_s"] < 0.8 * unreported["kbit_per_s"]
+
+
+@pytest.mark.parametrize("reports", [True, False])
+def test_where_only_a_lean_link_leaves_the_layer_room_it_runs_while_the_reports_are_clean(face, reports):
+    """At 6 kbit/s over UDP the parameters with their copies leave the picture layer too little, without
+    them enough: it starts once the receiver reports a clean link and stops at its first loss; a
+    receiver that does not report never gets it. Every frame is drawn either way."""
+    heard, warnings = [], []
+
+    def feedback() -> Report | None:
+        heard.append(None)
+        n = len(heard)  # the first report after 1 s, clean until 6 s, then a packet repaired each frame
+        return Report(n, max(0, n - 150), 0) if n >= 25 else None
+
+    session = SendSession(LoopedSource(str(CLIP), 10.0), SendConfig(bitrate=6000, datagrams=True), face=face,
+                          warn=warnings.append)
+    if reports:
+        session.feedback = feedback
+    decoder, frames, layer = DatagramDecoder(), [], []
+    for packets in session.packets():
+        pictures = sum(packet_type(p[1]) == PICTURE for p in packets if p[0] == SYNC and len(p) > 1)
+        layer += [session.frame_count] * pictures
+        frames += [e for p in packets for e in decoder.receive(p) if isinstance(e, Frame)]
+    assert any("waits until fd-recv reports a link that loses nothing" in w for w in warnings)
+    assert len(frames) == 250 and not any(f.concealed for f in frames)
+    if reports:
+        assert layer and 25 <= layer[0] and layer[-1] <= 151  # from the first clean report to the first loss
+        assert session.stats()["picture_packets"] == len(layer)
+    else:
+        assert not layer and session.stats()["picture_packets"] is None

@@ -185,8 +185,9 @@ def test_without_a_bitrate_with_the_layer_off_or_below_its_least_rate_nothing_ch
 
 def test_over_datagrams_a_rate_the_parameters_fill_sends_no_layer_and_says_so(face):
     """Over UDP the parameters' copies, keyframes and header repeats take about 5 kbit/s of the
-    sample's call: at 6 the layer's keys would take the stream over the rate, so it is not sent, with
-    one line saying why; on a byte stream the same rate sends it."""
+    sample's call: at 6 the layer's keys would take the stream over the rate, so it is not sent until the
+    receiver reports a clean link (none here: tests/test_link.py has one that does), with one line
+    saying why; on a byte stream the same rate sends it."""
     sent = {}
     for datagrams in (True, False):
         said: list[str] = []
@@ -202,7 +203,8 @@ def test_over_datagrams_a_rate_the_parameters_fill_sends_no_layer_and_says_so(fa
 
 def test_over_datagrams_a_lost_picture_packet_is_made_good_by_the_next_key(face):
     """A receiver that lost a picture packet draws the model's picture alone from the next one (whose
-    counter shows the gap) until the layer's next key (one a second over datagrams), and then
+    counter shows the gap) until the layer's next key (one a second over datagrams, or up to two where
+    the 2-second window lacks room for it), and then
     exactly what the sender draws again."""
     with sender_pictures() as pictures:
         session = SendSession(str(CLIP), SendConfig(bitrate=RATE * 1000, embed_face=False, datagrams=True), face=face)
@@ -214,7 +216,7 @@ def test_over_datagrams_a_lost_picture_packet_is_made_good_by_the_next_key(face)
     assert decoder.stats.damaged == 0 and decoder.stats.concealed == 0
     layer = [e for e in events if isinstance(e, Picture)]
     keys = [e.seq for e in layer if e.data[0] & 1]
-    assert len(keys) >= 2 and keys[1] - keys[0] <= 25
+    assert len(keys) >= 2 and keys[1] - keys[0] <= 2 * 25
     lost = next(e for e in layer if keys[0] < e.seq < keys[1])
     view = PictureView(events[0], face.model, (360, 288))
     drawn, model = {}, {}
