@@ -214,7 +214,8 @@ class Datagrams:
     datagrams in a row cost no frame. Late join: the header
     packet goes again before every ``eager_every``-th of the first ``eager`` keyframes after the
     first and then before every ``header_every``-th (0: never; None: as often as
-    REPEAT_BITS a keyframe pays for, at least every HEADER_EVERY-th), so a receiver
+    REPEAT_BITS a keyframe pays for, at least every HEADER_EVERY-th; every HEADER_EVERY-th while
+    :attr:`lean`), so a receiver
     started mid-call renders from the keyframe after it; the end mark goes
     twice. With a ``sealer`` every datagram is sealed, and the preamble goes
     again with the header. Given the header's ``key_interval``, keyframes are counted by their
@@ -241,6 +242,9 @@ class Datagrams:
         #: The receiver reported (sender/link.py), so it holds the header: the eager repeats, for a
         #: receiver started a moment after the sender, stop; the later ones stay, for one that restarts.
         self.joined = False
+        #: The receiver reports a link that loses nothing: the later repeats go at most every HEADER_EVERY-th
+        #: keyframe place (one that restarts shows in its next report, which ends the lean spell).
+        self.lean = False
         self.repeated = 0  # bytes of the header's repeats so far
 
     def repeat_rate(self, key_seconds: float) -> float:
@@ -264,8 +268,9 @@ class Datagrams:
             if kind == KEY:
                 k, last = self._key_place(packet), self._last_key
                 self._last_key = k
+                every = max(self._every, HEADER_EVERY) if self.lean and self._every else self._every
                 if k and ((not self.joined and k <= self._eager and _passes(self._eager_every, last, k))
-                          or (self._every and _passes(self._every, last, k))):
+                          or (every and _passes(every, last, k))):
                     repeat = self._seal([self._header], preamble=True)
                     self.repeated += sum(map(len, repeat))
                     out += repeat

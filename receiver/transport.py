@@ -170,10 +170,11 @@ class UdpSource:
 
     def _report(self, peer) -> None:
         """After a datagram of the stream from ``peer``: a loss report to it, at most every REPORT_EVERY
-        seconds (a sender that does not read them drops them)."""
+        seconds once the header is held (a sender that does not read them drops them; one that hears
+        none keeps the copies and repeats the header often: what a receiver that joined late needs)."""
         self._received += 1
         now = time.monotonic()
-        if not self._reports or now - self._reported < REPORT_EVERY:
+        if not self._reports or self.decoder.header is None or now - self._reported < REPORT_EVERY:
             return
         self._reported = now
         stats = self.decoder.stats

@@ -346,7 +346,7 @@ class SendSession:
         self.datagrams.copies = 0 if lean else self.config.redundancy
         self.encoder.frames_per_packet = self.config.frames_per_packet or (STREAM_FRAMES if lean else DATAGRAM_FRAMES)
         self.encoder.key_every = LEAN_KEYS if lean else 1
-        self.datagrams.joined = self._link.heard
+        self.datagrams.joined, self.datagrams.lean = self._link.heard, lean
         if self.picture is not None:
             self.picture.key_every = LEAN_KEY_EVERY if lean else KEY_EVERY
         self.lean_frames += lean

@@ -248,6 +248,19 @@ def test_a_small_header_goes_again_more_often_than_a_large_one():
     assert Datagrams(bytes(233)).repeat_rate(1.0) == 8 * 233 / 24  # a speaker's own layout: 1864 / 80 bits
 
 
+def test_while_the_receiver_reports_a_clean_link_the_header_goes_every_header_every_th_place():
+    """A receiver that reports holds the header; one that restarts reports nothing until it has one
+    (receiver/transport.py), so the lean spell ends and the repeats come as often as before."""
+    enc = PacketEncoder(header(), 2)
+    pack = Datagrams(enc.header()[0], copies=0, header_every=3, eager=0, key_interval=KEY)
+    pack.add(enc.header())
+    places = []
+    for i, x in enumerate(smooth_tracks(KEY * (2 * HEADER_EVERY + 1))):
+        pack.lean = i // KEY < 2 * HEADER_EVERY - 3
+        places += [i // KEY] * sum(d == enc.header()[0] for d in pack.add(enc.frame(x, True)))
+    assert places == [HEADER_EVERY, 2 * HEADER_EVERY - 3, 2 * HEADER_EVERY]  # lean, then every 3rd again
+
+
 def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
