@@ -181,14 +181,15 @@ class PictureLayer:
         packets: list[bytes] = []
         room = self._room(spent)
         since = None if self._last_key is None else (seq - self._last_key + self._every) / self._fps
-        key = since is None or (  # after key_every, once the window has room for it (or twice that at most)
-            self.key_every is not None and since > self.key_every and (
-                room >= self._key_size or since > 2 * self.key_every))
+        every = self.key_every
+        waiting = since is not None and every is not None and since > every
+        # a key due waits, and the video with it, until the window has room for it (twice key_every at most)
+        key = since is None or (waiting and (room >= self._key_size or since > 2 * (every or 0.0)))
         self._parameter_bits += (spent - self._parameter_bits) / PARAMETER_MEMORY
         share = (1 - BLOCKS_SHARE) * max(0.0, self._frame_bits - self._parameter_bits)
         self._credit = min(self._credit + share, BURST * share * self._fps)
         due = self._last_video is None or seq - self._last_video >= self._every
-        if due and (key or (self._credit >= 0 and room >= HEADROOM * self._size)):
+        if due and (key or (not waiting and self._credit >= 0 and room >= HEADROOM * self._size)):
             packets = self._send(seq, self._sized(frame_bgr), model, key, encoder)
         elif self._layer.frame is not None and min(self._saved, room) >= 8 * (PACKING + 4):
             rgb = self._looked(self._sized(frame_bgr))
