@@ -243,7 +243,7 @@ class Datagrams:
         #: receiver started a moment after the sender, stop; the later ones stay, for one that restarts.
         self.joined = False
         #: The receiver reports a link that loses nothing: the later repeats go at most every HEADER_EVERY-th
-        #: keyframe place (one that restarts shows in its next report, which ends the lean spell).
+        #: keyframe place (one that restarts reports nothing until it holds the header: the spell ends).
         self.lean = False
         self.repeated = 0  # bytes of the header's repeats so far
 
