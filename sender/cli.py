@@ -95,7 +95,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                            "finest quantiser level that codes the call's first second within it, with the dead "
                            "zone widened as the call goes where livelier talking costs more. Over udp:// it counts "
                            "the copies (--redundancy) and the header's repeats for late joiners (all but those "
-                           "of the first 4 s, which are one-off like the header)")
+                           "of the first 4 s, which are one-off like the header); where the copies leave the "
+                           "picture layer too little, it runs while fd-recv reports a link that loses nothing")
     rate.add_argument("--quality", type=number(*LIMITS["quality"], kind=int), metavar="1-5",
                       help="the picture's quality as a --bitrate: " + ", ".join(
                           f"{q} {r / 1000:g}" for q, r in QUALITY_RATES.items()) + " kbit/s. 1 is the face "
