@@ -20,9 +20,9 @@ from pathlib import Path
 
 import facedeform
 from facedeform.experiment.clips import crops
+from facedeform.experiment.reporting import ReportingReceiver
 from facedeform.protocol.framing import MODEL, PICTURE, SYNC, packet_type
-from facedeform.protocol.report import REPORT_EVERY, Report
-from facedeform.protocol.stream import DatagramDecoder, Model
+from facedeform.protocol.stream import Model
 from facedeform.sender.config import SendConfig
 from facedeform.sender.session import SendSession
 from facedeform.sender.sources import LoopedSource
@@ -42,18 +42,7 @@ def call(path: Path, fps: float, face, kbps: float, reports: bool = True, join: 
     session = SendSession(LoopedSource(str(path), CALL),
                           SendConfig(bitrate=1000 * kbps, paced_face=True, datagrams=True), face=face,
                           warn=lambda line: None)
-    decoder, lose = DatagramDecoder(), random.Random(seed)
-    heard, last_report = 0, -REPORT_EVERY
-
-    def feedback() -> Report | None:
-        nonlocal last_report
-        now = session.frame_count / fps
-        if not reports or decoder.header is None or now - last_report < REPORT_EVERY:  # fd-recv's: once it decodes
-            return None
-        last_report = now
-        return Report(heard, decoder.stats.repaired, decoder.stats.concealed, decoder.model_missing)
-
-    session.feedback = feedback
+    receiver, lose = ReportingReceiver(session, fps, reports), random.Random(seed)
     row: dict = {"preview_s": None, "face_s": None, "layer_from_s": None}
     sent = face_bytes = 0
     for datagrams in session.packets():
@@ -65,8 +54,7 @@ def call(path: Path, fps: float, face, kbps: float, reports: bool = True, join: 
                 row["layer_from_s"] = round(now, 1)
             if now < join or lose.random() < loss:
                 continue
-            heard += 1
-            for event in decoder.receive(datagram):
+            for event in receiver.receive(datagram):
                 if isinstance(event, Model):
                     row["preview_s" if event.preview else "face_s"] = round(now - join, 1)
     session.close()

@@ -27,8 +27,8 @@ import facedeform
 from facedeform.common.parameters import MAX_COMPONENTS
 from facedeform.experiment.clips import crops
 from facedeform.experiment.metrics import psnr_rgb
-from facedeform.protocol.report import REPORT_EVERY, Report
-from facedeform.protocol.stream import DatagramDecoder, frame_bytes
+from facedeform.experiment.reporting import ReportingReceiver
+from facedeform.protocol.stream import frame_bytes
 from facedeform.receiver.session import ReceiveSession
 from facedeform.sender.config import SendConfig
 from facedeform.sender.session import SendSession
@@ -60,21 +60,12 @@ def run_udp(clip, face, kbps: float) -> dict:
     together, as sender fps; receiver fps not measured)."""
     session = SendSession(str(clip.path), SendConfig(bitrate=1000 * kbps, embed_face=False, datagrams=True),
                           face=face, warn=lambda line: None)
-    decoder, drawn, heard, last = DatagramDecoder(), [], 0, -REPORT_EVERY
-    decoder.hold_model()  # (what fd-recv --face tells its decoder)
-
-    def feedback() -> Report | None:
-        nonlocal last
-        now = session.frame_count / clip.fps
-        if decoder.header is None or now - last < REPORT_EVERY:
-            return None
-        last = now
-        return Report(heard, decoder.stats.repaired, decoder.stats.concealed, decoder.model_missing)
+    link, drawn = ReportingReceiver(session, clip.fps), []
+    link.decoder.hold_model()  # (what fd-recv --face tells its decoder)
 
     class Keep:
         write, close = drawn.append, staticmethod(lambda: None)
 
-    session.feedback = feedback
     receiver = ReceiveSession(lambda fps, size: [Keep()], None, face.model, warn=lambda line: None)
     started, per_frame = time.perf_counter(), []
     for i, datagrams in enumerate(session.packets()):
@@ -82,8 +73,7 @@ def run_udp(clip, face, kbps: float) -> dict:
             per_frame += [0] * (session.frame_count - len(per_frame))
             per_frame[-1] += 8 * sum(map(len, datagrams))
         for datagram in datagrams:
-            heard += 1
-            receiver.handle(decoder.receive(datagram), 0.0)
+            receiver.handle(link.receive(datagram), 0.0)
     receiver.close()
     return measured(clip, session, kbps, per_frame, drawn, time.perf_counter() - started, None) | \
         {"setting": f"{kbps:g}k udp", "lean_frames": session.lean_frames}

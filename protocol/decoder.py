@@ -337,7 +337,7 @@ class PacketDecoder:
         if self._model_held or not body[pos:]:
             self.stats.duplicates += 1
             return []
-        parts = self._model = self._model or ModelParts(header.model_size, header.preview_size)
+        parts = self._model = self._model or ModelParts(header.model_size)
         had = parts.missing
         added = parts.add(offset, body[pos:])
         if added is None:

@@ -15,10 +15,10 @@ MAX_PIECES = 1024
 
 
 class ModelParts:
-    """The ``size`` bytes of a face model whose first ``preview`` bytes are a preview face (0: none)."""
+    """The ``size`` bytes of a face model."""
 
-    def __init__(self, size: int, preview: int = 0) -> None:
-        self.size, self.preview = size, preview
+    def __init__(self, size: int) -> None:
+        self.size = size
         self._starts: list[int] = []  # sorted starts of the pieces held, which neither overlap nor touch
         self._pieces: list[bytearray] = []
         self.held = 0  # bytes held

@@ -18,8 +18,6 @@ joins after the face is through and reports a face it lacks starts the rounds ag
 the face within one.
 """
 
-from collections import deque
-
 from facedeform.protocol.encoder import MODEL_CHUNK, PacketEncoder, stream_size
 from facedeform.protocol.report import Report
 
@@ -34,8 +32,9 @@ FRAMING = 10  # bytes a chunk adds to what it carries, about
 class FacePacing:
     """The in-band model of ``encoder`` (``size`` bytes: the preview, then the face) in chunks within
     ``bitrate`` bit/s for the whole stream over frames ``fps`` a second. :meth:`step` takes the bits
-    each frame's own packets cost and gives the chunks to send before them: what the frames leave of
-    the rate, saved up to a chunk's worth, as far as the last WINDOW seconds leave room. ``sealed``:
+    each frame's own packets cost, and what the stream sent over the frames of the last WINDOW seconds
+    before it, and gives the chunks to send before them: what the frames leave of the rate, saved up
+    to a chunk's worth, as far as the window leaves room. ``sealed``:
     packets are sealed (a sync byte each more); ``rounds``: over datagrams, round and round until the
     receiver reports the whole face held (:meth:`hear`); ``preview``: the first bytes, a preview face."""
 
@@ -51,8 +50,6 @@ class FacePacing:
         #: (over UDP before any report the frames' copies alone can go over the rate for as long as no
         #: receiver reports: owed in full, that had held the face back 18 s after one joined 20 s in)
         self._credit = 0.0
-        #: bits of the last frames sent, chunks included: what the picture layer starts from
-        self.recent: deque[int] = deque(maxlen=window - 1)
         self.sent = 0  # bytes of the model sent, rounds included
         self._next = 0  # where the next chunk starts
         self._held: int | None = None  # the first byte the receiver last reported it lacks; None: no report
@@ -87,11 +84,12 @@ class FacePacing:
         picture layer's first key then finds the window as at a call's start."""
         return self.done and self._quiet >= self._window - 1
 
-    def step(self, frame_bits: int) -> list[bytes]:
-        """The chunks to send before a frame whose own packets cost ``frame_bits``."""
+    def step(self, frame_bits: int, spent: float) -> list[bytes]:
+        """The chunks to send before a frame whose own packets cost ``frame_bits``, where the frames of
+        the WINDOW seconds before it cost ``spent``, chunks included."""
         most = 8.0 * (self._piece + FRAMING)
         self._credit = min(max(self._credit + self._frame_bits - frame_bits, -most), most)
-        room = min(self._credit, self._window_bits - sum(self.recent) - frame_bits)
+        room = min(self._credit, self._window_bits - spent - frame_bits)
         chunks: list[bytes] = []
         while not self.done:
             if self._next >= self._size:  # another round, from the first byte the receiver lacks
@@ -106,6 +104,5 @@ class FacePacing:
             self._next += size
             self.sent += size
             chunks.append(chunk)
-        self.recent.append(frame_bits + 8 * stream_size(chunks, self._sealed))
         self._quiet = 0 if chunks else self._quiet + 1
         return chunks

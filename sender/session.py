@@ -205,7 +205,7 @@ class SendSession:
         self.feedback: Callable[[], Report | None] | None = None
         self._link = LinkWatch()
         self.lean_frames = 0  # frames sent lean: without copies, on a link that lost nothing
-        #: bits of the last frames sent (what a picture layer started mid-call finds in its window)
+        #: bits of the last frames sent (the window a paced face and a picture layer started mid-call find)
         self._recent: deque[int] = deque(maxlen=max(1, round(WINDOW * self.source.fps)) - 1)
 
     @property
@@ -291,7 +291,7 @@ class SendSession:
             if self._lean_layer and self.picture is not None and not self._link.lean:
                 self._stop_layer()  # the copies are back, and leave the layer too little
             elif self._lean_layer and self.picture is None and self._pacing is None:
-                self._start_layer(self._recent)
+                self._start_layer()
             repeats_before = 0 if self.datagrams is None else self.datagrams.repeated
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
             if self._keeper is not None:  # on the frames' bits: the repeats' share was taken off its aim
@@ -301,24 +301,25 @@ class SendSession:
             if self.picture is not None and result.frame is not None and drawn_from is not None:
                 packets = self._seal(self.picture.step(seq, result.frame, drawn_from, self.encoder, packets)) + packets
             if self._pacing is not None:
-                packets = self._seal(self._pacing.step(8 * stream_size(packets, self.sealed))) + packets
-                if self._pacing.drained and self.picture is None:  # the receiver holds the face: the layer next
-                    self._start_layer(self._pacing.recent)
-                    if not self.config.datagrams:  # (over datagrams a receiver may join that lacks it)
-                        self._pacing = None
+                packets = self._seal(self._pacing.step(8 * stream_size(packets, self.sealed), sum(self._recent))) \
+                    + packets
             self.stream_bytes += stream_size(packets, self.sealed)
             self._recent.append(8 * stream_size(packets, self.sealed))
+            if self._pacing is not None and self._pacing.drained and self.picture is None:
+                self._start_layer()  # the receiver holds the face: the layer from the next frame
+                if not self.config.datagrams:  # (over datagrams a receiver may join that lacks it)
+                    self._pacing = None
             if packets:
                 yield packets
         yield self.end()
 
-    def _start_layer(self, recent: Sequence[int] = ()) -> None:
-        """The picture layer from the next frame on, where the call sends one and the link allows it;
-        ``recent``: the bits of the frames before it."""
+    def _start_layer(self) -> None:
+        """The picture layer from the next frame on, where the call sends one and the link allows it
+        (its window as the frames before it spent it)."""
         if self._layer_rate is not None and (self._link.lean or not self._lean_layer):
             self._layer_counts = self._layer_counts or (0, 0)
             self.picture = PictureLayer(self._face, self.header, self._layer_rate, self.sealed,
-                                        self.config.datagrams, recent)
+                                        self.config.datagrams, self._recent)
 
     def _stop_layer(self) -> None:
         """No picture layer from this frame on (its packets and bits stay counted)."""
@@ -374,15 +375,14 @@ class SendSession:
                 not layer_pays(bitrate, reference.image.shape[1::-1], cost):
             lean = sample_bits_per_second(header, sample, STREAM_FRAMES, self.config.dead_zone, 0, 0) + \
                 datagrams.repeat_rate(key_seconds(header))
+            said = f"the parameters take about {cost / 1000:.1f} of the {bitrate / 1000:g} kbit/s asked{over}: "
             if self.sealer is None and layer_pays(bitrate, reference.image.shape[1::-1], lean):
                 self._lean_layer = True
-                self._warn(f"the parameters take about {cost / 1000:.1f} of the {bitrate / 1000:g} kbit/s asked{over}: "
-                           f"the picture layer waits until fd-recv reports a link that loses nothing (about "
-                           f"{lean / 1000:.1f} then)")
+                self._warn(said + f"the picture layer waits until fd-recv reports a link that loses nothing "
+                                  f"(about {lean / 1000:.1f} then)")
             else:
                 self._layer_rate = None
-                self._warn(f"the parameters take about {cost / 1000:.1f} of the {bitrate / 1000:g} kbit/s asked"
-                           f"{over}: too little is left for the picture layer, which is not sent")
+                self._warn(said + "too little is left for the picture layer, which is not sent")
         if cost > bitrate:
             self._warn(f"the parameters take about {cost / 1000:.1f} kbit/s at their coarsest{over}, more than "
                        f"the {bitrate / 1000:g} asked: the stream will go over it")
