@@ -215,12 +215,12 @@ class Datagrams:
     packet goes again before every ``eager_every``-th of the first ``eager`` keyframes after the
     first and then before every ``header_every``-th (0: never; None: as often as
     REPEAT_BITS a keyframe pays for, at least every HEADER_EVERY-th; every HEADER_EVERY-th while
-    :attr:`lean`), so a receiver
-    started mid-call renders from the keyframe after it; the end mark goes
-    twice. With a ``sealer`` every datagram is sealed, and the preamble goes
-    again with the header. Given the header's ``key_interval``, keyframes are counted by their
-    places (a keyframe's frame number over it), so that the header keeps its pace in time where
-    the encoder sends a keyframe only at some places (:attr:`PacketEncoder.key_every`); once
+    :attr:`lean`), so a receiver started mid-call renders from the keyframe after it (but not with
+    the stream's end: a receiver that joined then would draw a frame or two); the end mark goes
+    twice. With a ``sealer`` every datagram is sealed, and the preamble goes again with the header.
+    Given the header's ``key_interval``, keyframes are counted by their places (a keyframe's frame
+    number over it), so that the header keeps its pace in time where the encoder sends a keyframe
+    only at some places (:attr:`PacketEncoder.key_every`); once
     :attr:`joined`, the eager repeats stop. Model chunks are not repeated: a late receiver
     draws the face it has. What each costs is in docs/bitstream.md, "Datagrams".
     :attr:`copies` may change between packets: a decoder takes a datagram with any number.
@@ -260,6 +260,7 @@ class Datagrams:
     def add(self, packets: list[bytes]) -> list[bytes]:
         """Datagrams for one step of the encoder (its header, a frame's packets or its end)."""
         out: list[bytes] = []
+        ending = any(kind_of(packet) == END for packet in packets)
         for packet in packets:
             kind = kind_of(packet)
             if kind not in (KEY, DELTA, END):
@@ -269,7 +270,7 @@ class Datagrams:
                 k, last = self._key_place(packet), self._last_key
                 self._last_key = k
                 every = max(self._every, HEADER_EVERY) if self.lean and self._every else self._every
-                if k and ((not self.joined and k <= self._eager and _passes(self._eager_every, last, k))
+                if k and not ending and ((not self.joined and k <= self._eager and _passes(self._eager_every, last, k))
                           or (every and _passes(every, last, k))):
                     repeat = self._seal([self._header], preamble=True)
                     self.repeated += sum(map(len, repeat))

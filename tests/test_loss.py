@@ -261,6 +261,20 @@ def test_while_the_receiver_reports_a_clean_link_the_header_goes_every_header_ev
     assert places == [HEADER_EVERY, 2 * HEADER_EVERY - 3, 2 * HEADER_EVERY]  # lean, then every 3rd again
 
 
+def test_the_header_does_not_go_again_with_the_streams_end():
+    """The last keyframe, flushed with the end mark, goes without the header: a receiver joining then
+    would draw a frame, and over a 2-second window at 4 kbit/s a speaker's own header was a fifth
+    of the rate (benchmarks/bench_picture_layer.py --udp)."""
+    enc = PacketEncoder(header(), 2)
+    pack = Datagrams(enc.header()[0], copies=0, header_every=1, eager=0)
+    pack.add(enc.header())
+    before = [pack.add(enc.frame(x, True)) for x in smooth_tracks(KEY * 3 + 1)]  # the last a keyframe, pending
+    keyed = [d for d in before[:-1] if any(header().ident in p for p in d)]
+    assert len(keyed) == 3 and all(enc.header()[0] in d for d in keyed[1:])  # (none before the first)
+    end = pack.add(enc.end())
+    assert any(header().ident in d for d in end) and enc.header()[0] not in end
+
+
 def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
