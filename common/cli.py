@@ -10,11 +10,15 @@ from facedeform.common.limits import MAX_SIDE
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse, but a wrong argument is one line on stderr (exit 2), as every other user mistake."""
+    """argparse, but a wrong argument is one line on stderr (exit 2), as every other user mistake;
+    every tool says its version (``--version``, before anything heavy is loaded)."""
 
     def __init__(self, **kwargs) -> None:
+        from facedeform import __version__
+
         kwargs.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
         super().__init__(**kwargs)
+        self.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")

@@ -1,5 +1,6 @@
 """fd-send and fd-recv end to end on the bundled clip, and every user mistake as one line."""
 
+import importlib.metadata
 import json
 import subprocess
 import sys
@@ -10,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+import facedeform
 from facedeform.protocol.quantise import DEAD_ZONE
 from facedeform.sender.calibrate import lip_gap
 from tests.support import CLIP, RECV, ROOT, SEND, assert_one_line_error, clip_frames, coded_error, parse_y4m, run
@@ -157,6 +159,16 @@ def test_bad_arguments_are_one_line(args, prog):
     result = run(args)
     assert_one_line_error(result, prog)
     assert result.returncode == 2
+
+
+@pytest.mark.parametrize("module, prog", [
+    ("sender.cli", "fd-send"), ("receiver.cli", "fd-recv"), ("sender.enroll", "fd-enroll"),
+    ("receiver.animate", "fd-animate"), ("experiment.cli", "fd-experiment"), ("sender.keygen", "fd-keygen"),
+])
+def test_every_tool_says_its_version_and_nothing_else(module, prog):
+    result = run([sys.executable, "-m", f"facedeform.{module}", "--version"])
+    assert result.returncode == 0 and result.stdout.decode() == f"{prog} {facedeform.__version__}\n"
+    assert importlib.metadata.version("facedeform") == facedeform.__version__  # the package's, one place
 
 
 @pytest.fixture(scope="module")
