@@ -290,6 +290,28 @@ def test_a_face_over_its_budget_takes_a_coarser_picture_and_keeps_its_parts(side
     assert got.image.shape == detail.image.shape
 
 
+def test_a_face_still_over_its_budget_drops_its_motion_basiss_last_patterns():
+    """At COARSEST_CRF and still over, the basis loses its last patterns (those that explained least)
+    one by one while over, down to LEAST_PATTERNS; the patterns kept are stored as before."""
+    from facedeform.codec.face_file.format import LEAST_PATTERNS
+    from facedeform.codec.model.motion_basis import MotionBasis
+
+    rng = np.random.default_rng(1)
+    vertices = np.arange(0, 468, 2)
+    vectors = rng.uniform(-1, 1, (12, len(vertices), 3))
+    person = replace(decode_face(personal_face(*a_person())), picture=a_picture_with_a_mouth(),
+                     motion=MotionBasis(vertices, vectors, steps=np.full(12, 127)))
+    coarse = [len(encode_face(replace(person, motion=replace(person.motion, vectors=vectors[:k],
+                                                             steps=np.full(k, 127))), picture_quality=COARSEST_CRF))
+              for k in (12, 11, 10)]
+    assert coarse[0] > coarse[1] > coarse[2]
+    kept = decode_face(within_budget(person, budget=coarse[1])).motion
+    whole = decode_face(encode_face(person)).motion
+    assert len(kept.vectors) == 11 and np.array_equal(kept.vectors, whole.vectors[:11])
+    assert len(decode_face(within_budget(person, budget=1000)).motion.vectors) == LEAST_PATTERNS
+    assert len(decode_face(within_budget(person, budget=coarse[0])).motion.vectors) == 12
+
+
 @pytest.mark.parametrize("changes, message", [
     ({"mouth_points": [[1.0, 1.0]] * 3}, "open mouth's points do not fit"),
     ({"mouth_points": [[100.0, 1.0]] * 20}, "open mouth's points do not fit"),

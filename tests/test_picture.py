@@ -13,6 +13,7 @@ from facedeform.codec.model.face_model import ReferencePicture, load_base_face, 
 from facedeform.codec.model.head_pose import head_pivot
 from facedeform.codec.render.camera import Camera
 from facedeform.codec.render.picture import (
+    MOUTH_GAP,
     RINGS,
     BodyRegion,
     Placement,
@@ -169,10 +170,16 @@ def test_an_open_mouth_is_drawn_from_the_person_own_open_mouth():
     lips = np.any(PictureView(header(face, names), face, (400, 320)).render(np.array([0.0])) != rest, axis=2)
     np.testing.assert_array_equal(rest[~lips], face.picture.image[~lips])
     assert lips.sum() < 300  # the generic face's parted lips only
-    # a face so large that its rings reach past half a picture side keeps the cavity (bounded texture)
+    # a face so large that its rings reach past half a picture side: its texture's border is at most half
+    # the picture's larger side each way, and the person's open mouth is still drawn, the rest as without
+    # it (the flat cavity had been drawn instead: liveportrait_d3, pcavs_Pose_Source)
     huge = replace(face, picture=replace(with_mouth.picture, image=with_mouth.picture.image[:160, :200],
                                          projection=Placement(140.0, np.eye(3), np.array([100.0, -80.0, 0])).matrix()))
-    np.testing.assert_array_equal(SceneMesh(huge, huge.picture).texture, huge.picture.image)
+    plain = replace(huge, picture=replace(huge.picture, mouth=None, mouth_points=None))
+    assert SceneMesh(huge, huge.picture).texture.shape[:2] <= (160 + 200 + MOUTH_GAP + 12, 200 + 200)
+    drawn, cavity = (PictureView(header(f, names), f, (200, 160)).render(np.array([20.0])) for f in (huge, plain))
+    mouth = np.any(drawn != cavity, axis=2)
+    assert mouth.sum() > 50 and np.all(drawn[mouth][:, 0] > 200) and np.all(drawn[mouth][:, 1:] < 60)
 
 
 def test_looks_follow_what_the_face_has():

@@ -147,6 +147,9 @@ QUALITY = {".av1": 28, ".webp": 80, ".jpg": 90, ".png": 0}
 #: sadtalker_WDA_KatieHill's whole picture was as at 28, its face 2.7 KB smaller: docs/face_file.md).
 BUDGET, HD_BUDGET, HD_PIXELS = 10_000, 20_000, 640 * 480
 COARSEST_CRF = 40
+#: ... and then the fewest patterns of its motion basis it keeps (each of the last ones about 100-250
+#: bytes at 256x256; sadtalker_WDA_KatieHill's face kept 9 of 12: docs/face_file.md).
+LEAST_PATTERNS = 8
 #: A preview face's (:func:`preview_face`) vertices in steps of 1/256 of the face's height (a vertex off by
 #: at most 0.3 pixels of a 256x256 crop's face), and its picture's AV1 CRF.
 PREVIEW_MESH_STEPS = 256
@@ -297,7 +300,8 @@ def personal_face(neutral: np.ndarray, texture: np.ndarray | None = None,
 def within_budget(face: BaseFace, budget: int | None = None) -> bytes:
     """``face``'s file with its reference picture at the AV1 CRF of QUALITY or, while the file is over
     ``budget`` bytes (None: BUDGET, HD_BUDGET for an HD picture; 0: no budget), coarser by 2 up to
-    COARSEST_CRF."""
+    COARSEST_CRF; then, while still over, without its motion basis's last pattern (the one that
+    explained least of the enrolment clip), down to LEAST_PATTERNS."""
     data = encode_face(face)
     if face.picture is None or budget == 0:
         return data
@@ -306,6 +310,11 @@ def within_budget(face: BaseFace, budget: int | None = None) -> bytes:
     crf = QUALITY[PICTURE_FORMAT]
     while len(data) > budget and crf < COARSEST_CRF:
         crf += 2
+        data = encode_face(face, picture_quality=crf)
+    while len(data) > budget and face.motion is not None and len(face.motion.vectors) > LEAST_PATTERNS:
+        motion = face.motion
+        face = replace(face, motion=replace(motion, vectors=motion.vectors[:-1],
+                                            steps=None if motion.steps is None else motion.steps[:-1]))
         data = encode_face(face, picture_quality=crf)
     return data
 

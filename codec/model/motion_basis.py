@@ -31,10 +31,12 @@ OVER = ("rest", "paper")  # what the patterns are displacements from
 #: The most steps a face file gives a pattern's unit move (a vertex coordinate in a signed byte).
 MOST_STEPS = 127
 #: Steps per unit of the largest coefficient the enrolment clip gave a pattern: at that coefficient a vertex
-#: is then off by at most 1 / (2 REACH_STEPS) of the face's height, half a coefficient's own rounding at
-#: the default level (steps of 1/250). 1024 (a quarter) had cost the nine dev clips' faces 1.1-1.5 KB more
-#: (docs/face_file.md) for a whole picture within 0.02 dB on eight of them.
-REACH_STEPS = 512
+#: is then off by at most 1 / (2 REACH_STEPS) of the face's height, a quarter of a coefficient's own rounding
+#: at the default level (steps of 1/250). A call may go well past the enrolment clip's largest coefficient,
+#: and the rounding of a pattern in few steps then turns the lips' small triangles over: 512 (1.1-1.5 KB
+#: less a face, the whole picture within 0.02 dB) had the fold guard draw liveportrait_d3's mouth scaled
+#: back in most frames, its tracked opening swinging 0.34 times the speaker's (1.15 at 1024).
+REACH_STEPS = 1024
 LEAST_STEPS = 4
 
 

@@ -315,8 +315,12 @@ class SceneMesh:
         self._open = None  # (open mouth image, its vertices' pixels) when the scene draws the person's own
         height, width = picture.image.shape[:2]
         mouth_image, mouth_points = picture.mouth, picture.mouth_points
-        self._pad = lo, hi = _padding(pixels, (width, height))  # the picture's border in the texture
-        if mouth_image is not None and mouth_points is not None and max(*lo, *hi) <= max(width, height) // 2:
+        # the picture's border in the texture, at most half its larger side each way (the texture's memory):
+        # a ring vertex at rest past it takes the border's texel there (:meth:`textured`), where the
+        # person's open mouth was left out and a flat cavity drawn instead (liveportrait_d3, pcavs_Pose_Source)
+        most = max(width, height) // 2
+        self._pad = lo, hi = tuple(np.minimum(side, most) for side in _padding(pixels, (width, height)))
+        if mouth_image is not None and mouth_points is not None:
             self.picture_at = (int(lo[0]), int(lo[1]))
             self.mouth_row = height + int(lo[1] + hi[1]) + MOUTH_GAP
             self._mouth = mouth_vertices(face)
@@ -337,8 +341,9 @@ class SceneMesh:
         """(texture, (vertices, 2) uv with v up) that texture the scene by ``image``, a picture in the
         reference picture's place (the reference itself, or its eyes' lids drawn). With the person's open
         mouth (or ``mouth``, the same remapped: :attr:`interior`), it goes below the picture in one
-        texture (at :attr:`mouth_row`), the picture's edges repeated as far as the rings reach (the
-        clamp the picture alone would have; the picture's top left at :attr:`picture_at`)."""
+        texture (at :attr:`mouth_row`), the picture's edges repeated as far as the rings reach, or half
+        the picture's larger side (the clamp the picture alone would have; the picture's top left at
+        :attr:`picture_at`)."""
         height, width = image.shape[:2]
         pixels = self.rest_pixels
         if self._open is None:
@@ -350,7 +355,7 @@ class SceneMesh:
         below = self.mouth_row
         atlas = np.zeros((below + mouth_image.shape[0], max(padded.shape[1], mouth_image.shape[1]), 3), np.uint8)
         atlas[:padded.shape[0], :padded.shape[1]], atlas[below:, :mouth_image.shape[1]] = padded, mouth_image
-        placed = np.concatenate([np.clip(pixels + lo, 0, [padded.shape[1], padded.shape[0]]),
+        placed = np.concatenate([np.clip(pixels + lo, 1, [padded.shape[1] - 1, padded.shape[0] - 1]),
                                  mouth_points + [0.0, below]])
         height, width = atlas.shape[:2]
         return atlas, np.column_stack([placed[:, 0] / width, 1.0 - placed[:, 1] / height])
