@@ -109,6 +109,26 @@ def test_the_rate_is_kept_within_a_tenth_over_any_two_seconds(call):
     assert bits.sum() * 25 / len(bits) > 0.7 * RATE * 1000  # and the rate is used
 
 
+def test_over_udp_to_a_receiver_that_reports_the_rate_is_kept_too(face):
+    """Every datagram after the header counted (copies, keyframes, the header's repeats, the layer),
+    to fd-recv's decoder reporting a clean link (experiment/reporting.py): within a tenth of the rate
+    over any 2 seconds, the layer sent, the end included."""
+    from facedeform.experiment.reporting import ReportingReceiver
+
+    rate = 8.0
+    session = SendSession(str(CLIP), SendConfig(bitrate=rate * 1000, embed_face=False, datagrams=True), face=face,
+                          warn=lambda line: None)
+    link, bits = ReportingReceiver(session, 25), []
+    for i, datagrams in enumerate(session.packets()):
+        for datagram in datagrams:
+            link.receive(datagram)
+        if i:  # after the header
+            bits += [0] * (session.frame_count - len(bits))
+            bits[-1] += 8 * sum(map(len, datagrams))
+    assert session.lean_frames > 0 and session.stats()["picture_packets"] > 10
+    assert np.convolve(bits, np.ones(50), mode="valid").max() <= 1.1 * rate * 1000 * 2.0
+
+
 def test_video_frames_follow_the_first_key_at_once(face, monkeypatch):
     """The first key takes about a second of the layer's rate; the frames after it still come at the
     video's usual interval, a frame in 5 at 4 kbit/s (the 2-second window alone holds the key: charged
