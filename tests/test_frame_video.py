@@ -130,6 +130,24 @@ def test_blend_draws_the_model_in_its_blocks_and_the_video_elsewhere():
     np.testing.assert_array_equal(blend(model, video_parts(model, video), np.ones_like(chosen), PICTURE), model)
 
 
+def test_the_seam_widens_with_the_pixels_a_video_pixel_covers():
+    """Model and video meet over a band about twice as wide where the video has half the picture's
+    side, and no wider at a quarter (SEAM); given the picture's size, as wide as without a size."""
+    picture = (256, 64)
+    model = np.full((picture[1], picture[0], 3), 200, np.uint8)
+    chosen = np.zeros(blocks_of(picture), bool)
+    chosen[:, : chosen.shape[1] // 2] = True
+    video = np.full((16, 64, 3), 40, np.uint8)
+
+    def band(video_size):
+        row = blend(model, video_parts(model, video), chosen, picture, video_size)[picture[1] // 2, :, 0].astype(int)
+        return int(np.count_nonzero((row > 42) & (row < 198)))
+
+    same, half, quarter = band(picture), band((128, 32)), band((64, 16))
+    assert same == band(None) and 1.7 * same < half == quarter
+    assert (blend(model, video_parts(model, video), chosen, picture, (64, 16))[:, :BLOCK // 2] == 200).all()
+
+
 def test_blocks_in_a_box_and_a_favoured_model():
     inside = blocks_in((40.0, 10.0, 70.0, 33.0), PICTURE)
     assert inside.shape == blocks_of(PICTURE) and inside.sum() == 4  # columns 1-2, rows 0-1

@@ -41,6 +41,14 @@ from numba import njit
 from facedeform.protocol.arith import AdaptiveBit, decode_run, encode_run
 
 BLOCK = 32  # pixels of the picture per model-or-video choice (16: four to seven times the bits for 0.24 dB)
+#: Where the model's blocks meet the video's, the seam's blur grows with the picture's side over the
+#: video's, up to this many times half a block: where the video is a half of the picture's side
+#: (256x256 at 4 and 10 kbit/s) a model block misplaced by a few pixels meets the video's blur in a
+#: double edge. Twice raised the nine dev crops' PSNR at 4 kbit/s by 0.01-0.14 dB (0.075 on average,
+#: every clip), at 10 by 0.02 on average (-0.04 to +0.06); at 30 kbit/s, a video of the picture's
+#: size, blurred as much it lost 0.015 on average (pcavs_Pose_Source 0.13), so it keeps half a block
+#: there (docs/picture_layer.md). Half as much lost 0.09 dB at 4 kbit/s.
+SEAM = 2.0
 #: SVT-AV1's speed preset: in its real-time mode 6 is the slowest (4 gives the same bytes). Against
 #: 10, on the nine dev clips' crops at 4, 10 and 30 kbit/s, the whole picture gained 0.19, 0.28 and
 #: 0.72 dB on average (at 10 and 30 on every clip), at the same rates; at 1280x720 and 60 kbit/s
@@ -258,25 +266,29 @@ def decode_blocks(before: np.ndarray, data: bytes) -> tuple[np.ndarray, int] | N
 VideoParts = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
-def blend(model: np.ndarray, parts: VideoParts, chosen: np.ndarray, picture_size: tuple[int, int]) -> np.ndarray:
+def blend(model: np.ndarray, parts: VideoParts, chosen: np.ndarray, picture_size: tuple[int, int],
+          video_size: tuple[int, int] | None = None) -> np.ndarray:
     """The picture drawn: ``model`` ((H, W, 3) uint8, any size) in the blocks ``chosen`` (True, of a
     picture of ``picture_size``), elsewhere the video frame (``parts``: its :func:`video_parts` with
-    this model) with the model's detail added where its coarse picture agrees with the video's; the
-    two meet softly over half a block."""
+    this model, the frame of ``video_size``; None: the picture's) with the model's detail added where
+    its coarse picture agrees with the video's; the two meet softly over half a block, more where a
+    video pixel covers more of the picture's (SEAM)."""
     up, coarse, agree = parts
     model = np.ascontiguousarray(model)
     out = np.empty_like(model)
-    _mix(model, up, coarse, agree, _soft(chosen, picture_size, model.shape[1::-1]), out)
+    wider = 1.0 if video_size is None else min(SEAM, max(1.0, picture_size[0] / video_size[0]))
+    _mix(model, up, coarse, agree, _soft(chosen, picture_size, model.shape[1::-1], wider), out)
     return out
 
 
-def _soft(chosen: np.ndarray, picture_size: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
+def _soft(chosen: np.ndarray, picture_size: tuple[int, int], size: tuple[int, int], wider: float = 1.0
+          ) -> np.ndarray:
     """(h, w) float32 weight of the model's picture at ``size``: the blocks ``chosen`` blurred over
-    half a block (at a quarter of the picture's scale, where it costs a sixteenth)."""
+    ``wider`` times half a block (at a quarter of the picture's scale, where it costs a sixteenth)."""
     quarter = BLOCK // 4
     pw, ph = picture_size
     mask = np.kron(chosen, np.ones((quarter, quarter))).astype(np.float32)[:-(-ph // 4), :-(-pw // 4)]
-    return cv2.resize(cv2.GaussianBlur(mask, (0, 0), quarter / 4), size, interpolation=cv2.INTER_LINEAR)
+    return cv2.resize(cv2.GaussianBlur(mask, (0, 0), wider * quarter / 4), size, interpolation=cv2.INTER_LINEAR)
 
 
 def video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = None) -> VideoParts:
@@ -474,7 +486,7 @@ class VideoLayer:
         _, frame, chosen, since = self._states[0]
         if frame is None:
             return model
-        return blend(model, _carried_parts(model, frame, since, carry), chosen, self.picture_size)
+        return blend(model, _carried_parts(model, frame, since, carry), chosen, self.picture_size, frame.shape[1::-1])
 
     def _decode(self, video: bytes, key: bool) -> np.ndarray | None:
         if key or self._decoder is None:
