@@ -10,7 +10,6 @@ video's.
 """
 
 from collections import deque
-from collections.abc import Iterable
 from math import ceil
 
 import cv2
@@ -122,15 +121,16 @@ class PictureLayer:
 
     :meth:`step` takes each frame after the encoder coded it and returns the layer's packets to
     send before that frame's packets; ``sealed``: packets are sealed (each costs a sync byte
-    more on a byte stream); ``datagrams``: they go over a lossy link (KEY_EVERY); ``recent``: the bits
-    the stream spent on the frames just before the first (a paced face's: sender/face_pacing.py).
+    more on a byte stream); ``datagrams``: they go over a lossy link (KEY_EVERY); ``recent``: the
+    caller's window of the bits the stream sent for each frame before this one (WINDOW seconds less a
+    frame, the newest last), to which it adds each frame's, the layer's packets included, after the step.
     :attr:`picture` is what the receiver draws of the last frame stepped, drawn when it is read (the
     layer's choices do not need it: at 1920x1080 drawing it cost the sender 5 ms a frame, and the
     model's picture whole another 15 where the choice is made on a smaller view, :data:`CHOICE_SIDE`).
     """
 
-    def __init__(self, face: BaseFace, header: Header, bitrate: float, sealed: bool = False,
-                 datagrams: bool = False, recent: Iterable[int] = ()) -> None:
+    def __init__(self, face: BaseFace, header: Header, bitrate: float, recent: deque[int], sealed: bool = False,
+                 datagrams: bool = False) -> None:
         from facedeform.receiver.face_view import PictureView
 
         if face.picture is None:
@@ -155,9 +155,8 @@ class PictureLayer:
         self._fps = header.fps
         self._parameter_bits = parameter_rate(bitrate) / header.fps  # the parameters' bits a frame, a running mean
         self._credit = 0.0  # bits the video may still spend, against its share so far
-        window = max(1, round(WINDOW * header.fps))
-        self._recent: deque[int] = deque(recent, maxlen=window - 1)  # bits of the last frames sent
-        self._window_bits = MARGIN * self._frame_bits * window
+        self._recent = recent
+        self._window_bits = MARGIN * self._frame_bits * ((recent.maxlen or 0) + 1)
         self._blocks_bits = BLOCKS_SHARE * layer / header.fps  # a frame's share for blocks only
         self._saved = 0.0  # bits saved for blocks only
         self._size = 8.0 * SMALLEST  # bits of a video packet, a running mean
@@ -201,7 +200,6 @@ class PictureLayer:
         bits = 8 * stream_size(packets, self._sealed)
         self.packets += bool(packets)
         self.bits += bits
-        self._recent.append(spent + bits)
         self._last = seq
         return packets
 

@@ -205,7 +205,8 @@ class SendSession:
         self.feedback: Callable[[], Report | None] | None = None
         self._link = LinkWatch()
         self.lean_frames = 0  # frames sent lean: without copies, on a link that lost nothing
-        #: bits of the last frames sent (the window a paced face and a picture layer started mid-call find)
+        #: bits of the last frames sent, WINDOW seconds less a frame: what a paced face and the picture layer keep
+        #: the stream within (the layer from the window as the frames before it spent it)
         self._recent: deque[int] = deque(maxlen=max(1, round(WINDOW * self.source.fps)) - 1)
 
     @property
@@ -318,8 +319,8 @@ class SendSession:
         (its window as the frames before it spent it)."""
         if self._layer_rate is not None and (self._link.lean or not self._lean_layer):
             self._layer_counts = self._layer_counts or (0, 0)
-            self.picture = PictureLayer(self._face, self.header, self._layer_rate, self.sealed,
-                                        self.config.datagrams, self._recent)
+            self.picture = PictureLayer(self._face, self.header, self._layer_rate, self._recent, self.sealed,
+                                        self.config.datagrams)
 
     def _stop_layer(self) -> None:
         """No picture layer from this frame on (its packets and bits stay counted)."""
