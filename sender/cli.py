@@ -12,6 +12,7 @@ from facedeform.sender.analysis import LAYOUT_NAMES
 from facedeform.sender.config import (
     BITRATE,
     DATAGRAM_FRAMES,
+    LEVEL_SHARE,
     LIMITS,
     QUALITY_RATES,
     SPEAKER_RATE,
@@ -104,9 +105,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                            "rate carries the picture layer, and every step up buys picture")
     rate.add_argument("--level", type=number(*LIMITS["level"], kind=int), metavar="1-5",
                       help="instead of a rate, the parameters' quantiser level, 1 (coarse, fewest bits) to 5 "
-                           f"(fine); each level halves the steps of the one below. Default: {DEFAULT_QUALITY}, and "
-                           f"with a --face from fd-enroll (its own motion basis) a coarser level where the "
-                           f"speaker's first second needs it to stay within {SPEAKER_RATE / 1000:g} kbit/s, with a "
+                           f"(fine); each level halves the steps of the one below. Default: {DEFAULT_QUALITY}; with a "
+                           f"--face from fd-enroll (its own motion basis) the finest level that codes the speaker's "
+                           f"first second within {100 * LEVEL_SHARE:g} %% of {SPEAKER_RATE / 1000:g} kbit/s, with a "
                            f"dead zone widened where the call later costs more")
     p.add_argument("--dead-zone", type=number(*LIMITS["dead_zone"]), default=default("dead_zone"), metavar="STEPS",
                    help="a parameter is resent only once it is this many quantiser steps from what the "

@@ -28,6 +28,11 @@ STREAM_FRAMES, DATAGRAM_FRAMES = 2, 1
 #: level 3 it cost 0.94-2.47 kbit/s on the dev clips, the liveliest talkers the most; kept within
 #: this, the picture moved by at most 0.07 dB (README, expression table).
 SPEAKER_RATE = 1500.0
+#: Where the parameters keep all of a --bitrate (or SPEAKER_RATE by default), their level must code
+#: the first second within this share of it: the rate keeper's dead zone could not bring back a level
+#: finer than the rest of a call affords before a short call ended (lipnet's 3-second clip at 1.5
+#: kbit/s took level 4 from its first second, and its first 2 s cost 1.165 times the rate).
+LEVEL_SHARE = 0.9
 #: name -> (lowest, highest) accepted value of the numeric settings (inclusive; None: unbounded).
 #: --quality N: the whole call's rate in bit/s, as --bitrate gives it. 1 is the face model alone (the
 #: picture layer pays from about 3 kbit/s at 256x256); each step up buys picture (docs/picture_layer.md).
@@ -50,7 +55,7 @@ class SendConfig:
     """How a call is coded.
 
     level: quantiser level (``protocol.quantise``; None: its DEFAULT_QUALITY, and with the speaker's
-    own motion basis coarser where needed to keep within :data:`SPEAKER_RATE`); quality: 1-5, the
+    own motion basis the finest that keeps the first second within :data:`SPEAKER_RATE`'s share); quality: 1-5, the
     ``bitrate`` of :data:`QUALITY_RATES` (one of level, quality and bitrate); frames_per_packet: frames
     sent together (fewer framing bits, more latency; None: :data:`STREAM_FRAMES`, over datagrams
     :data:`DATAGRAM_FRAMES`); layout: one of ``sender.analysis.LAYOUT_NAMES``;

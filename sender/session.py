@@ -37,7 +37,14 @@ from facedeform.protocol.stream import (
     stream_size,
 )
 from facedeform.sender.analysis import FaceAnalyser, FrameAnalysis, Smoothing, resolve_layout
-from facedeform.sender.config import DATAGRAM_FRAMES, SPEAKER_RATE, STREAM_FRAMES, SendConfig, parameter_rate
+from facedeform.sender.config import (
+    DATAGRAM_FRAMES,
+    LEVEL_SHARE,
+    SPEAKER_RATE,
+    STREAM_FRAMES,
+    SendConfig,
+    parameter_rate,
+)
 from facedeform.sender.face_pacing import FacePacing
 from facedeform.sender.link import LEAN_KEYS, LinkWatch
 from facedeform.sender.picture_layer import KEY_EVERY, LEAN_KEY_EVERY, WINDOW, PictureLayer, layer_pays
@@ -51,11 +58,6 @@ from facedeform.sender.sources import open_source
 #: (a keyframe every 8: 12 and 14); against 2 frames a datagram and a keyframe every 10 (0.4 s; 18
 #: and 14) it cost 22 % more bits.
 DATAGRAM_KEYS = 0.24
-#: Where the parameters keep all of a --bitrate, their level must code the first second within this
-#: share of it: the rate keeper's dead zone could not bring back a level finer than the rest of a call
-#: affords before a short call ended (lipnet's 3-second clip at 1.5 kbit/s took level 4 from its first
-#: second, and its first 2 s cost 1.165 times the rate).
-LEVEL_SHARE = 0.9
 
 
 def key_seconds(header: Header) -> float:
@@ -219,14 +221,15 @@ class SendSession:
         the aim the level's sample must fit): their share of --bitrate where a picture layer runs or a
         paced face comes (for the whole call: the level is the header's), all of it where neither does
         (the level chosen within LEVEL_SHARE of it), or by default with the speaker's own motion basis
-        at most SPEAKER_RATE and DEFAULT_QUALITY (a finer level bought no visible change where it fitted)."""
+        SPEAKER_RATE, the same way: a finer level where it fits took lipnet_bbaf2n's mouth swing from
+        0.83 to 0.86 of the speaker's (level 4 at 1.32 kbit/s; README, expression table)."""
         bitrate = self.config.bitrate
         if bitrate is not None:
             if self._layer_rate is not None or self.config.paced_face:
                 return parameter_rate(bitrate), max(QUALITIES), 1.0
             return bitrate, max(QUALITIES), LEVEL_SHARE
         default = self.config.level is None and layout == "personal"
-        return (SPEAKER_RATE if default else None), DEFAULT_QUALITY, 1.0
+        return (SPEAKER_RATE, max(QUALITIES), LEVEL_SHARE) if default else (None, DEFAULT_QUALITY, 1.0)
 
     def _header(self, quality: int) -> Header:
         return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model),

@@ -61,17 +61,19 @@ def test_a_rate_below_the_coarsest_level_is_kept_closer_by_the_dead_zone(face):
     assert kept_rate < 0.9 * fixed_rate
 
 
-def test_with_a_speakers_motion_basis_the_default_keeps_level_3_within_the_speaker_rate(face, monkeypatch):
-    """The sample's speaker costs less than SPEAKER_RATE at level 3: the default is level 3 (the
-    stream as at level 3); a speaker that costs more (here: a lower rate to keep) gets a coarser
-    level, the finest whose first second fits, and a wider dead zone where the call then costs
-    more than its first second (protocol/rate.py: the level alone is not kept to the rate; here
-    level 2 at 1.2 times the rate kept)."""
-    default, rate, level = send(face=face)
-    assert rate <= SPEAKER_RATE and level == 3 and default == send(face=face, level=3)[0]
+def test_with_a_speakers_motion_basis_the_default_is_the_finest_level_within_the_speaker_rate(face, monkeypatch):
+    """The sample's speaker codes his first second within LEVEL_SHARE of SPEAKER_RATE at level 4, not
+    at 5: the default is level 4, within the rate (the dead zone widened where the call costs more
+    than its first second: at most level 4's own rate), where level 5 costs more than the share. A
+    speaker that costs more (here: a lower rate to keep) gets a coarser level, the finest whose first
+    second fits, and a wider dead zone where the call then costs more than its first second
+    (protocol/rate.py: the level alone is not kept to the rate)."""
+    _, rate, level = send(face=face)
+    assert rate <= SPEAKER_RATE and level == 4 and rate <= send(face=face, level=4)[1]
+    assert send(face=face, level=5)[1] > session.LEVEL_SHARE * SPEAKER_RATE
     monkeypatch.setattr(session, "SPEAKER_RATE", rate / 2)
     _, thin, coarser = send(face=face)
-    assert coarser < 3 and thin < send(face=face, level=coarser)[1]
+    assert coarser < 4 and thin < send(face=face, level=coarser)[1]
 
 
 def test_a_quality_or_the_generic_face_keeps_a_fixed_level():
