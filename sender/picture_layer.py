@@ -84,6 +84,15 @@ CHOICE_SIDE = 480
 #: than they show (liveportrait_d11 at 1.5 kbit/s: 27.6 dB with a layer of 0.4 kbit/s, 28.2
 #: with the parameters alone).
 LEAST = 1_500
+#: The call's first key takes at most this share of the 2-second window where a blur of its picture
+#: (FIRST_KEY_BLURS, Gaussian sigmas in the video's pixels, the least that does) brings it there: the
+#: model draws the detail where it agrees with the video, and the frames after refine the rest. On the
+#: nine dev crops only sadtalker_WDA_KatieHill's key passed it (0.51 of the window at 4 kbit/s, 0.49 at 10;
+#: 0.16-0.33 on three others measured), and its next video frames then came in its first two seconds: +0.06 dB at 4
+#: kbit/s (5th percentile 15.2 to 15.7), +0.20 at 10 (15.8 to 17.3). A share of 0.25 blurred four keys at
+#: 10 kbit/s (+0.02 dB on average, tpsmm_driving -0.19) and seven at 4 (-0.01): docs/picture_layer.md.
+FIRST_KEY_SHARE = 0.35
+FIRST_KEY_BLURS = (1.0, 2.0, 3.0)
 
 
 def layer_rate(bitrate: float) -> float:
@@ -151,7 +160,8 @@ class PictureLayer:
         video = (1 - BLOCKS_SHARE) * layer  # bit/s
         self._every = max(1, ceil(header.fps * 8 * SMALLEST / video))
         sent = header.fps / self._every  # video packets a second
-        self._encoder = VideoEncoder(self._video_size, video - 8 * PACKING * sent, sent)
+        self._encoder_rate = (video - 8 * PACKING * sent, sent)
+        self._encoder = VideoEncoder(self._video_size, *self._encoder_rate)
         self._fps = header.fps
         self._parameter_bits = parameter_rate(bitrate) / header.fps  # the parameters' bits a frame, a running mean
         self._credit = 0.0  # bits the video may still spend, against its share so far
@@ -232,6 +242,19 @@ class PictureLayer:
         """Ends the video's encoder (after the last frame)."""
         self._encoder.close()
 
+    def _first_key(self, small: np.ndarray) -> np.ndarray:
+        """``small`` (the call's first key's picture) blurred as little as makes its key take at most
+        FIRST_KEY_SHARE of the 2-second window (the most blurred if none does), each tried on an encoder
+        of the same settings (at 256x256 a few milliseconds each, once a call)."""
+        for blur in (0.0, *FIRST_KEY_BLURS):
+            tried = small if blur == 0 else cv2.GaussianBlur(small, (0, 0), blur)
+            trial = VideoEncoder(self._video_size, *self._encoder_rate)
+            bits = 8 * len(trial.encode(tried, True))
+            trial.close()
+            if bits <= FIRST_KEY_SHARE * self._window_bits:
+                break
+        return tried
+
     def _sized(self, frame_bgr: np.ndarray) -> np.ndarray:
         """``frame_bgr`` at the picture's size."""
         same = frame_bgr.shape[1::-1] == self.size
@@ -245,6 +268,8 @@ class PictureLayer:
         favour, looked = self._favour(), self._looked(bgr)
         small = looked if looked.shape[1::-1] == self._video_size else \
             cv2.cvtColor(shrunk(bgr, self._video_size), cv2.COLOR_BGR2RGB)
+        if self._last_key is None:
+            small = self._first_key(small)
         video = self._encoder.encode(small, key)
         data = self._layer.make(seq, video, key, model, self._look.carry, lambda parts, before: choose_blocks(
             model, parts, looked, before, favour=favour, shrink=self._shrink))

@@ -142,6 +142,23 @@ def test_video_frames_follow_the_first_key_at_once(face, monkeypatch):
     assert sent[0] == 0 and sent[1] <= 10
 
 
+def test_a_first_key_that_would_fill_the_window_is_blurred_until_it_does_not(face, monkeypatch):
+    """Asked for a key of at most a thousandth of the window, the layer sends the most blurred of its
+    tries, a smaller key than the sharp one it sends when any key will do; the receiver still draws
+    what the sender reconstructed."""
+    def first_key_bits(share: float) -> int:
+        monkeypatch.setattr(picture_layer, "FIRST_KEY_SHARE", share)
+        with sender_pictures() as pictures:
+            session = SendSession(str(CLIP), SendConfig(bitrate=4_000, embed_face=False), face=face)
+            chunks, _, lists = sent_per_frame(session)
+        assert all(mine.tobytes() == theirs.tobytes() for mine, theirs in
+                   zip(pictures, facedeform.decode(chunks, face)))
+        return 8 * len(next(p for packets in lists for p in packets if kind_of(p) == PICTURE))
+
+    blurred, sharp = first_key_bits(0.001), first_key_bits(1.0)
+    assert blurred < 0.8 * sharp
+
+
 @pytest.mark.parametrize("body", [
     varint(3) + varint(1 << 30) + varint(0) + b"x",  # a payload larger than any
     varint(3) + varint(10) + varint(8) + b"xyz",  # past its own end
