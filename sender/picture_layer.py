@@ -161,7 +161,7 @@ class PictureLayer:
         self._every = max(1, ceil(header.fps * 8 * SMALLEST / video))
         sent = header.fps / self._every  # video packets a second
         self._encoder_rate = (video - 8 * PACKING * sent, sent)
-        self._encoder = VideoEncoder(self._video_size, *self._encoder_rate)
+        self._encoder: VideoEncoder | None = None  # made with the first key (_first_key)
         self._fps = header.fps
         self._parameter_bits = parameter_rate(bitrate) / header.fps  # the parameters' bits a frame, a running mean
         self._credit = 0.0  # bits the video may still spend, against its share so far
@@ -240,20 +240,22 @@ class PictureLayer:
 
     def close(self) -> None:
         """Ends the video's encoder (after the last frame)."""
-        self._encoder.close()
+        if self._encoder is not None:
+            self._encoder.close()
 
-    def _first_key(self, small: np.ndarray) -> np.ndarray:
-        """``small`` (the call's first key's picture) blurred as little as makes its key take at most
-        FIRST_KEY_SHARE of the 2-second window (the most blurred if none does), each tried on an encoder
-        of the same settings (at 256x256 a few milliseconds each, once a call)."""
-        for blur in (0.0, *FIRST_KEY_BLURS):
-            tried = small if blur == 0 else cv2.GaussianBlur(small, (0, 0), blur)
-            trial = VideoEncoder(self._video_size, *self._encoder_rate)
-            bits = 8 * len(trial.encode(tried, True))
-            trial.close()
-            if bits <= FIRST_KEY_SHARE * self._window_bits:
+    def _first_key(self, small: np.ndarray) -> bytes:
+        """The call's first key: ``small`` blurred as little as makes its key take at most
+        FIRST_KEY_SHARE of the 2-second window (the most blurred if none does), each blur on an encoder
+        of its own; the one whose key goes is the call's from then on."""
+        blurs = (0.0, *FIRST_KEY_BLURS)
+        for blur in blurs:
+            encoder = VideoEncoder(self._video_size, *self._encoder_rate)
+            video = encoder.encode(small if blur == 0 else cv2.GaussianBlur(small, (0, 0), blur), True)
+            if 8 * len(video) <= FIRST_KEY_SHARE * self._window_bits or blur == blurs[-1]:
                 break
-        return tried
+            encoder.close()
+        self._encoder = encoder
+        return video
 
     def _sized(self, frame_bgr: np.ndarray) -> np.ndarray:
         """``frame_bgr`` at the picture's size."""
@@ -268,9 +270,10 @@ class PictureLayer:
         favour, looked = self._favour(), self._looked(bgr)
         small = looked if looked.shape[1::-1] == self._video_size else \
             cv2.cvtColor(shrunk(bgr, self._video_size), cv2.COLOR_BGR2RGB)
-        if self._last_key is None:
-            small = self._first_key(small)
-        video = self._encoder.encode(small, key)
+        if self._encoder is None:
+            video = self._first_key(small)
+        else:
+            video = self._encoder.encode(small, key)
         data = self._layer.make(seq, video, key, model, self._look.carry, lambda parts, before: choose_blocks(
             model, parts, looked, before, favour=favour, shrink=self._shrink))
         packets = [] if data is None else encoder.picture(seq, data)
