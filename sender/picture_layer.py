@@ -84,14 +84,16 @@ CHOICE_SIDE = 480
 #: than they show (liveportrait_d11 at 1.5 kbit/s: 27.6 dB with a layer of 0.4 kbit/s, 28.2
 #: with the parameters alone).
 LEAST = 1_500
-#: The call's first key takes at most this share of the 2-second window where a blur of its picture
-#: (FIRST_KEY_BLURS, Gaussian sigmas in the video's pixels, the least that does) brings it there: the
-#: model draws the detail where it agrees with the video, and the frames after refine the rest. On the
-#: nine dev crops only sadtalker_WDA_KatieHill's key passed it (0.51 of the window at 4 kbit/s, 0.49 at 10;
-#: 0.16-0.33 on three others measured), and its next video frames then came in its first two seconds: +0.06 dB at 4
-#: kbit/s (5th percentile 15.2 to 15.7), +0.20 at 10 (15.8 to 17.3). A share of 0.25 blurred four keys at
-#: 10 kbit/s (+0.02 dB on average, tpsmm_driving -0.19) and seven at 4 (-0.01): docs/picture_layer.md.
-FIRST_KEY_SHARE = 0.35
+#: Where the call's first key would take more than FIRST_KEY_SHARE of the 2-second window, it is coded
+#: from its picture blurred (FIRST_KEY_BLURS, Gaussian sigmas in the video's pixels, the least that
+#: brings it under FIRST_KEY_AIM): the model draws the detail where it agrees with the video, and the
+#: video frames after it, which then come in the first two seconds, refine the rest. On the nine dev
+#: crops only sadtalker_WDA_KatieHill's key passed the share (0.51 of the window at 4 kbit/s, 0.49 at
+#: 10; 0.16-0.33 on three others measured): +0.15 dB at 4 kbit/s (5th percentile 15.23 to 15.97),
+#: +0.27 at 10 (15.80 to 19.03); aiming at 0.35 itself, +0.06 and +0.20. A share of 0.25 blurred four
+#: keys at 10 kbit/s (+0.02 dB on average, tpsmm_driving -0.19) and seven at 4 (-0.01):
+#: docs/picture_layer.md.
+FIRST_KEY_SHARE, FIRST_KEY_AIM = 0.35, 0.25
 FIRST_KEY_BLURS = (1.0, 2.0, 3.0)
 
 
@@ -244,14 +246,15 @@ class PictureLayer:
             self._encoder.close()
 
     def _first_key(self, small: np.ndarray) -> bytes:
-        """The call's first key: ``small`` blurred as little as makes its key take at most
-        FIRST_KEY_SHARE of the 2-second window (the most blurred if none does), each blur on an encoder
-        of its own; the one whose key goes is the call's from then on."""
+        """The call's first key: ``small`` as it is if its key takes at most FIRST_KEY_SHARE of the
+        2-second window, else blurred as little as brings it under FIRST_KEY_AIM (the most blurred if
+        none does), each try on an encoder of its own; the one whose key goes is the call's from then on."""
         blurs = (0.0, *FIRST_KEY_BLURS)
         for blur in blurs:
             encoder = VideoEncoder(self._video_size, *self._encoder_rate)
             video = encoder.encode(small if blur == 0 else cv2.GaussianBlur(small, (0, 0), blur), True)
-            if 8 * len(video) <= FIRST_KEY_SHARE * self._window_bits or blur == blurs[-1]:
+            share = FIRST_KEY_AIM if blur else FIRST_KEY_SHARE
+            if 8 * len(video) <= share * self._window_bits or blur == blurs[-1]:
                 break
             encoder.close()
         self._encoder = encoder

@@ -143,11 +143,12 @@ def test_video_frames_follow_the_first_key_at_once(face, monkeypatch):
 
 
 def test_a_first_key_that_would_fill_the_window_is_blurred_until_it_does_not(face, monkeypatch):
-    """Asked for a key of at most a thousandth of the window, the layer sends the most blurred of its
-    tries, a smaller key than the sharp one it sends when any key will do; the receiver still draws
-    what the sender reconstructed."""
+    """Asked for a key of at most a thousandth of the window (and aiming there once blurred), the
+    layer sends the most blurred of its tries, a smaller key than the sharp one it sends when any
+    key will do; the receiver still draws what the sender reconstructed."""
     def first_key_bits(share: float) -> int:
         monkeypatch.setattr(picture_layer, "FIRST_KEY_SHARE", share)
+        monkeypatch.setattr(picture_layer, "FIRST_KEY_AIM", share)
         with sender_pictures() as pictures:
             session = SendSession(str(CLIP), SendConfig(bitrate=4_000, embed_face=False), face=face)
             chunks, _, lists = sent_per_frame(session)
