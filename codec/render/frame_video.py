@@ -61,14 +61,15 @@ PRESET = "6"
 #: frames after each. With it the frames are even, and on seven dev clips the whole picture gained
 #: 0.03-0.46 dB at 4 kbit/s, 0.15-0.42 at 10 and 0.37-0.63 at 30 (docs/picture_layer.md).
 RTC = 1
-#: SVT-AV1's finest quantiser for a video whose larger side is at most SMALL_SIDE pixels. At such
-#: sizes its rate control in the real-time mode now and then gives one frame ten times its share
-#: (the bundled clip at 8 kbit/s over udp://, a 180x144 video: 3,744 bits where about 300 were
-#: planned, its first 2 seconds 1.21 times the rate; at 4 kbit/s, 90x72, 675 bytes where 54 were,
-#: 1.44 times). Bounded, the nine dev crops at 4 and 10 kbit/s (128x128) drew the same pictures
-#: within 0.005 dB; at 30 kbit/s (256x256), where a still picture pays for finer quantisers, the
-#: bound cost lipnet_bbaf2n 0.81 dB, so larger videos keep SVT-AV1's own (docs/picture_layer.md).
-SMALL_SIDE, SMALL_MIN_QP = 192, 40
+#: SVT-AV1's finest quantiser for a video of at most BOUNDED_RATE bit/s. At such rates its rate control
+#: in the real-time mode now and then gives one frame ten times its share (the bundled clip at 4
+#: kbit/s, a 90x72 video: 675 bytes where 54 were planned, its first 2 seconds 1.43 times the rate;
+#: at 8 kbit/s over udp://, 180x144: 3,744 bits where about 300 were). Bounded, the nine dev crops at 4
+#: and 10 kbit/s drew the same pictures within 0.02 dB, and the bundled clip kept 0.97-1.00 of the rate
+#: at 4-10 kbit/s. Faster videos keep SVT-AV1's own: at 30 kbit/s the bound cost lipnet_bbaf2n's crop
+#: 0.81 dB, the bundled clip 1.1 dB (13 kbit/s spent of 30), where a picture pays for finer quantisers
+#: (docs/picture_layer.md).
+BOUNDED_RATE, BOUNDED_MIN_QP = 10_000, 40
 #: SVT-AV1's preset for a still picture. On one 256x256 face's picture at CRF 25 (PyAV's conversion),
 #: preset 2 took 2 % fewer bytes than 4 and gave 0.2 dB more, in 0.25 s against 0.1 (not tried at
 #: 1920x1080, where enrolment would wait for it); preset 6 took a quarter more bytes.
@@ -107,7 +108,7 @@ class VideoEncoder:
         # whether a frame fits the 2-second window (tpsmm_driving at 4 kbit/s: 2056 bits where about 500
         # were planned, its first 2 s 1.107 times the rate); flat, the largest window on the nine dev
         # clips was 1.073, for about 0.1 dB less at 10 kbit/s (docs/picture_layer.md).
-        floor = f":min-qp={SMALL_MIN_QP}" if max(size) <= SMALL_SIDE else ""
+        floor = f":min-qp={BOUNDED_MIN_QP}" if bitrate <= BOUNDED_RATE else ""
         codec.options = {"preset": PRESET, "svtav1-params":
                          f"pred-struct=1:keyint=0:scd=0:lookahead=0:rc=2:rtc={RTC}:hierarchical-levels=0{floor}"}
         codec.open()
