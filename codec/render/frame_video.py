@@ -64,11 +64,11 @@ RTC = 1
 #: SVT-AV1's finest quantiser for a video of at most BOUNDED_RATE bit/s. At such rates its rate control
 #: in the real-time mode now and then gives one frame ten times its share (the bundled clip at 4
 #: kbit/s, a 90x72 video: 675 bytes where 54 were planned, its first 2 seconds 1.43 times the rate;
-#: at 8 kbit/s over udp://, 180x144: 3,744 bits where about 300 were). Bounded, the nine dev crops at 4
-#: and 10 kbit/s drew the same pictures within 0.02 dB, and the bundled clip kept 0.97-1.00 of the rate
-#: at 4-10 kbit/s. Faster videos keep SVT-AV1's own: at 30 kbit/s the bound cost lipnet_bbaf2n's crop
-#: 0.81 dB, the bundled clip 1.1 dB (13 kbit/s spent of 30), where a picture pays for finer quantisers
-#: (docs/picture_layer.md).
+#: at 8 kbit/s over udp://, 180x144: 3,744 bits where about 300 were). Bounded, the nine dev crops
+#: drew the same pictures at 4 kbit/s (+0.004 dB on average) and at 10 -0.02 dB on average (-0.07 to
+#: +0.09 a clip), and the bundled clip kept 0.97-1.00 of the rate at 4-10 kbit/s. Faster videos keep
+#: SVT-AV1's own: at 30 kbit/s the bound cost lipnet_bbaf2n's crop 0.81 dB, the bundled clip 1.1 dB
+#: (13 kbit/s spent of 30), where a picture pays for finer quantisers (docs/picture_layer.md).
 BOUNDED_RATE, BOUNDED_MIN_QP = 10_000, 40
 #: SVT-AV1's preset for a still picture. On one 256x256 face's picture at CRF 25 (PyAV's conversion),
 #: preset 2 took 2 % fewer bytes than 4 and gave 0.2 dB more, in 0.25 s against 0.1 (not tried at
