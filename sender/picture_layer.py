@@ -95,6 +95,11 @@ LEAST = 1_500
 #: docs/picture_layer.md.
 FIRST_KEY_SHARE, FIRST_KEY_AIM = 0.35, 0.25
 FIRST_KEY_BLURS = (1.0, 2.0, 3.0)
+#: Over datagrams a key that has waited twice key_every for room goes once the window has room for this
+#: share of the usual key, blurred as little as fits it (FIRST_KEY_BLURS): forced whole, it had taken
+#: the bundled clip's first 2 s to 1.21 times the rate at 8 kbit/s to a receiver that does not report,
+#: its first key still in the window. The most blurred keys are about half the sharp ones.
+OVERDUE = 0.5
 
 
 def layer_rate(bitrate: float) -> float:
@@ -134,14 +139,18 @@ class PictureLayer:
     send before that frame's packets; ``sealed``: packets are sealed (each costs a sync byte
     more on a byte stream); ``datagrams``: they go over a lossy link (KEY_EVERY); ``recent``: the
     caller's window of the bits the stream sent for each frame before this one (WINDOW seconds less a
-    frame, the newest last), to which it adds each frame's, the layer's packets included, after the step.
+    frame, the newest last), to which it adds each frame's, the layer's packets included, after the step;
+    ``parameters``: bit/s the parameters are known to take where more than they aim at (over datagrams,
+    with their copies and the header's repeats: at 10 kbit/s on liveportrait_d12 6.6 kbit/s, where they
+    aim at 2; planned on the 2, the layer's first video frames had taken the first 2 s to 1.23 times
+    the rate).
     :attr:`picture` is what the receiver draws of the last frame stepped, drawn when it is read (the
     layer's choices do not need it: at 1920x1080 drawing it cost the sender 5 ms a frame, and the
     model's picture whole another 15 where the choice is made on a smaller view, :data:`CHOICE_SIDE`).
     """
 
     def __init__(self, face: BaseFace, header: Header, bitrate: float, recent: deque[int], sealed: bool = False,
-                 datagrams: bool = False) -> None:
+                 datagrams: bool = False, parameters: float = 0.0) -> None:
         from facedeform.receiver.face_view import PictureView
 
         if face.picture is None:
@@ -165,7 +174,8 @@ class PictureLayer:
         self._encoder_rate = (video - 8 * PACKING * sent, sent)
         self._encoder: VideoEncoder | None = None  # made with the first key (_first_key)
         self._fps = header.fps
-        self._parameter_bits = parameter_rate(bitrate) / header.fps  # the parameters' bits a frame, a running mean
+        #: the parameters' bits a frame, a running mean, from what they aim at or, where more, are known to take
+        self._parameter_bits = max(parameter_rate(bitrate), parameters) / header.fps
         self._credit = 0.0  # bits the video may still spend, against its share so far
         self._recent = recent
         self._window_bits = MARGIN * self._frame_bits * ((recent.maxlen or 0) + 1)
@@ -173,6 +183,7 @@ class PictureLayer:
         self._saved = 0.0  # bits saved for blocks only
         self._size = 8.0 * SMALLEST  # bits of a video packet, a running mean
         self._key_size = 0.0  # bits of a key's packets, a running mean
+        self._key_packing = 0  # bits the last key's packets took beside its video
         #: seconds between keys (None: the first only)
         self.key_every: float | None = KEY_EVERY if datagrams else None
         self._last_key: int | None = None
@@ -193,15 +204,18 @@ class PictureLayer:
         room = self._room(spent)
         since = None if self._last_key is None else (seq - self._last_key + self._every) / self._fps
         every = self.key_every
-        waiting = since is not None and every is not None and since > every
-        # a key due waits, and the video with it, until the window has room for it (twice key_every at most)
-        key = since is None or (waiting and (room >= self._key_size or since > 2 * (every or 0.0)))
+        waiting = overdue = False
+        if since is not None and every is not None:
+            # a key due waits, and the video with it, until the window has room for it; after twice
+            # key_every, until it has room for OVERDUE of it, and it is then blurred to fit (_fitted_key)
+            waiting, overdue = since > every, since > 2 * every
+        key = since is None or (waiting and room >= (OVERDUE if overdue else 1.0) * self._key_size)
         self._parameter_bits += (spent - self._parameter_bits) / PARAMETER_MEMORY
         share = (1 - BLOCKS_SHARE) * max(0.0, self._frame_bits - self._parameter_bits)
         self._credit = min(self._credit + share, BURST * share * self._fps)
         due = self._last_video is None or seq - self._last_video >= self._every
         if due and (key or (not waiting and self._credit >= 0 and room >= HEADROOM * self._size)):
-            packets = self._send(seq, self._sized(frame_bgr), model, key, encoder)
+            packets = self._send(seq, self._sized(frame_bgr), model, key, encoder, room)
         elif self._layer.frame is not None and min(self._saved, room) >= 8 * (PACKING + 4):
             rgb = self._looked(self._sized(frame_bgr))
             favour = self._favour()
@@ -245,22 +259,20 @@ class PictureLayer:
         if self._encoder is not None:
             self._encoder.close()
 
-    def _first_key(self, small: np.ndarray) -> tuple[bytes, int]:
-        """(the call's first key, the bits its sharp try took more). The key: ``small`` as it is if its
-        key takes at most FIRST_KEY_SHARE of the 2-second window, else blurred as little as brings it
-        under FIRST_KEY_AIM (the most blurred if none does), each try on an encoder of its own; the one
-        whose key goes is the call's from then on. Later keys (over datagrams) are sharp, and are planned
-        on the sharp try's size: planned on a blurred one's, sadtalker_WDA_KatieHill's second key at 4
-        kbit/s went into a window without room for it (1.28 times the rate)."""
+    def _fitted_key(self, small: np.ndarray, sharp_most: float, most: float) -> tuple[bytes, int]:
+        """(a key of ``small``, the bits its sharp try took more): ``small`` as it is if its key takes at
+        most ``sharp_most`` bits, else blurred as little as brings it under ``most`` (the most blurred if
+        none does), each try on an encoder of its own; the one whose key goes codes the call from then on."""
         blurs, sharp = (0.0, *FIRST_KEY_BLURS), 0
         for blur in blurs:
             encoder = VideoEncoder(self._video_size, *self._encoder_rate)
             video = encoder.encode(small if blur == 0 else cv2.GaussianBlur(small, (0, 0), blur), True)
             sharp = sharp or len(video)
-            share = FIRST_KEY_AIM if blur else FIRST_KEY_SHARE
-            if 8 * len(video) <= share * self._window_bits or blur == blurs[-1]:
+            if 8 * len(video) <= (most if blur else sharp_most) or blur == blurs[-1]:
                 break
             encoder.close()
+        if self._encoder is not None:
+            self._encoder.close()
         self._encoder = encoder
         return video, 8 * (sharp - len(video))
 
@@ -273,13 +285,22 @@ class PictureLayer:
         """``bgr`` (at the picture's size) in RGB at the size the choice is made at."""
         return cv2.cvtColor(shrunk(bgr, self._look.size), cv2.COLOR_BGR2RGB)
 
-    def _send(self, seq: int, bgr: np.ndarray, model: np.ndarray, key: bool, encoder: PacketEncoder) -> list[bytes]:
+    def _send(self, seq: int, bgr: np.ndarray, model: np.ndarray, key: bool, encoder: PacketEncoder,
+              room: float) -> list[bytes]:
+        """The packets of a video frame (a key if ``key``) for frame ``seq``, with ``room`` bits left in the
+        window. The call's first key takes at most FIRST_KEY_SHARE of the window, or is blurred under
+        FIRST_KEY_AIM; a later key that does not fit the room (OVERDUE) is blurred to fit it. Keys are
+        planned on their sharp tries' sizes: planned on a blurred one's, sadtalker_WDA_KatieHill's second
+        key at 4 kbit/s went into a window without room for it (1.28 times the rate)."""
         favour, looked = self._favour(), self._looked(bgr)
         small = looked if looked.shape[1::-1] == self._video_size else \
             cv2.cvtColor(shrunk(bgr, self._video_size), cv2.COLOR_BGR2RGB)
         sharper = 0  # bits a sharp key would have taken more
         if self._encoder is None:
-            video, sharper = self._first_key(small)
+            video, sharper = self._fitted_key(small, FIRST_KEY_SHARE * self._window_bits,
+                                              FIRST_KEY_AIM * self._window_bits)
+        elif key and room < self._key_size:
+            video, sharper = self._fitted_key(small, room - self._key_packing, room - self._key_packing)
         else:
             video = self._encoder.encode(small, key)
         data = self._layer.make(seq, video, key, model, self._look.carry, lambda parts, before: choose_blocks(
@@ -290,7 +311,8 @@ class PictureLayer:
             self._size += (bits - self._size) / 4
             self._credit -= bits
         if key:
-            self._key_size = bits + sharper if self._last_key is None else (self._key_size + bits) / 2
+            self._key_size = bits + sharper if self._last_key is None else (self._key_size + bits + sharper) / 2
+            self._key_packing = bits - 8 * len(video)
         self._last_key = seq if key else self._last_key
         self._last_video = seq
         return packets

@@ -183,6 +183,9 @@ class SendSession:
         self._layer_counts: tuple[int, int] | None = None  # packets and bits of the layers stopped; None: none ran
         #: over datagrams, the layer pays only without the copies: it runs while the link is lean (_check_room)
         self._lean_layer = False
+        #: over datagrams, bit/s the parameters take with their copies and the header's repeats, and lean
+        #: (_check_room): where the layer plans from at its start
+        self._parameter_costs = (0.0, 0.0)
         self._basis: np.ndarray | None = None
         self.sealer = None if config.key is None else SecureSealer(config.key, config.tag_bits)
         reference = model.picture
@@ -323,7 +326,7 @@ class SendSession:
         if self._layer_rate is not None and (self._link.lean or not self._lean_layer):
             self._layer_counts = self._layer_counts or (0, 0)
             self.picture = PictureLayer(self._face, self.header, self._layer_rate, self._recent, self.sealed,
-                                        self.config.datagrams)
+                                        self.config.datagrams, self._parameter_costs[self._link.lean])
 
     def _stop_layer(self) -> None:
         """No picture layer from this frame on (its packets and bits stay counted)."""
@@ -375,10 +378,12 @@ class SendSession:
             cost += datagrams.repeat_rate(key_seconds(header)) + datagrams.eager_rate(key_seconds(header))
             over = " with the copies, keyframes and header repeats of udp://"
         reference = self._face.picture
-        if self._layer_rate is not None and reference is not None and datagrams is not None and \
-                not layer_pays(bitrate, reference.image.shape[1::-1], cost):
+        if datagrams is not None:
             lean = sample_bits_per_second(header, sample, STREAM_FRAMES, self.config.dead_zone, 0, 0) + \
                 datagrams.repeat_rate(key_seconds(header))
+            self._parameter_costs = (cost, lean)
+        if self._layer_rate is not None and reference is not None and datagrams is not None and \
+                not layer_pays(bitrate, reference.image.shape[1::-1], cost):
             said = f"the parameters take about {cost / 1000:.1f} of the {bitrate / 1000:g} kbit/s asked{over}: "
             if self.sealer is None and layer_pays(bitrate, reference.image.shape[1::-1], lean):
                 self._lean_layer = True

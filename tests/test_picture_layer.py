@@ -139,6 +139,37 @@ def test_over_udp_to_a_receiver_that_reports_the_rate_is_kept_too(face):
     assert np.convolve(bits, np.ones(50), mode="valid").max() <= 1.1 * rate * 1000 * 2.0
 
 
+def test_over_udp_to_a_receiver_that_does_not_report_an_overdue_key_is_blurred_to_keep_the_rate(face, monkeypatch):
+    """To a receiver that does not report (a relay), keys come every second; one that has waited twice
+    that for room goes blurred into the room there is (picture_layer.OVERDUE): within a tenth of the rate
+    over any 2 seconds at 8 kbit/s (1.21 times when it went whole), and the receiver, given every
+    datagram, draws exactly what the sender reconstructed, the frames after the refitted key included."""
+    fitted = []
+    fit = picture_layer.PictureLayer._fitted_key
+    monkeypatch.setattr(picture_layer.PictureLayer, "_fitted_key",
+                        lambda self, *args: fitted.append(self._last_key) or fit(self, *args))
+    rate = 8.0
+    with sender_pictures() as pictures:
+        session = SendSession(str(CLIP), SendConfig(bitrate=rate * 1000, embed_face=False, datagrams=True),
+                              face=face, warn=lambda line: None)
+        bits, datagrams = [], []
+        for i, packets in enumerate(session.packets()):
+            datagrams += packets
+            if i:  # after the header
+                bits += [0] * (session.frame_count - len(bits))
+                bits[-1] += 8 * sum(map(len, packets))
+    assert fitted[0] is None and len(fitted) >= 2  # the first key, and a later one refitted
+    assert np.convolve(bits, np.ones(50), mode="valid").max() <= 1.1 * rate * 1000 * 2.0
+    decoder = DatagramDecoder()
+    events = [e for d in datagrams for e in decoder.receive(d)]
+    view = PictureView(events[0], face.model, (360, 288))
+    for event in events:
+        if isinstance(event, Picture):
+            view.layer.take(event.seq, event.data)
+        elif isinstance(event, Frame):
+            np.testing.assert_array_equal(view.render(event.params, event.seq), pictures[event.seq])
+
+
 def test_over_udp_the_keys_after_a_blurred_first_key_are_planned_as_sharp(face, monkeypatch):
     """A first key blurred to fit (here: every blur tried, the most blurred sent) is smaller, but the
     keys that follow it once a second are sharp: each waits for room for a sharp key's bits (planned on
