@@ -107,13 +107,13 @@ class ModelFit:
         moved = regions.jaw | (np.abs(w[:, free + follow]).sum(axis=1) > 1e-9)
         self.lower = np.flatnonzero(moved | (deformer.mouth.region >= 0) if mouth else moved)
         base = np.asarray(deformer.face.vertices, dtype=np.float64)
-        origin, axis = deformer.hinge_axis
+        _, axis = deformer.hinge_axis
         k1 = _cross_matrix(axis)
         k2 = k1 @ k1
         fpos = base[[deformer.face.feature_points[n] for n in FEATURE_NAMES]]
-        rel = np.where(regions.jaw[self.lower, None], base[self.lower] - origin, 0.0)
+        rel = np.where(regions.jaw[self.lower, None], base[self.lower] - deformer.jaw_pivots(base[self.lower]), 0.0)
         wf = w[self.lower][:, follow]  # (k, 3) blend of the jaw-following points
-        frel = fpos[follow] - origin
+        frel = fpos[follow] - deformer.jaw_pivots(fpos[follow])
         self._c0 = base[self.lower].ravel()
         self._c1 = (rel @ k1.T + wf @ (frel @ k1.T)).ravel()
         self._c2 = (rel @ k2.T + wf @ (frel @ k2.T)).ravel()
@@ -129,7 +129,7 @@ class ModelFit:
         f3 = FREE.index("F3")
         self._lip_columns = [3 * f3 + i for i in range(3)] + ([12 + MOUTH_PARAMS.index(n) for n in LOWER_LIP_PARAMS]
                                                               if mouth else [])
-        f3rel = fpos[col["F3"]] - origin
+        f3rel = fpos[col["F3"]] - deformer.jaw_pivots(fpos[[col["F3"]]])[0]
         self._lip_c1 = np.r_[k1 @ f3rel, np.zeros(len(self._lip_columns) - 3)]
         self._lip_c2 = np.r_[k2 @ f3rel, np.zeros(len(self._lip_columns) - 3)]
         self._lip_scale = float(np.mean(np.sum(b[:, self._lip_columns] ** 2, axis=0)))  # their gram diagonal

@@ -162,7 +162,8 @@ def test_an_open_mouth_is_drawn_from_the_person_own_open_mouth():
     with_mouth = replace(face, picture=replace(face.picture, mouth=red, mouth_points=points))
     names = ("theta",)
     shut, opened = (PictureView(header(f, names), f, (400, 320)).render(np.array([20.0])) for f in (face, with_mouth))
-    cavity = np.any(shut != opened, axis=2)
+    # (a pixel elsewhere may differ by a level: the texture's atlas holds the mouth too)
+    cavity = np.abs(shut.astype(int) - opened).max(axis=2) > 2
     assert cavity.sum() > 100  # the opening shows the open mouth instead of the dark cavity
     assert np.all(opened[cavity][:, 0] > 200) and np.all(opened[cavity][:, 1:] < 60)
     # at rest the picture is its own to the edges (the texture holds more than the picture now)
@@ -178,7 +179,7 @@ def test_an_open_mouth_is_drawn_from_the_person_own_open_mouth():
     plain = replace(huge, picture=replace(huge.picture, mouth=None, mouth_points=None))
     assert SceneMesh(huge, huge.picture).texture.shape[:2] <= (160 + 200 + MOUTH_GAP + 12, 200 + 200)
     drawn, cavity = (PictureView(header(f, names), f, (200, 160)).render(np.array([20.0])) for f in (huge, plain))
-    mouth = np.any(drawn != cavity, axis=2)
+    mouth = np.abs(drawn.astype(int) - cavity).max(axis=2) > 2
     assert mouth.sum() > 50 and np.all(drawn[mouth][:, 0] > 200) and np.all(drawn[mouth][:, 1:] < 60)
 
 

@@ -91,19 +91,20 @@ def test_parameters_follow_the_truth(round_trip):
     """What the tracker and fit achieve today on rendered faces (a regression guard)."""
     e = errors(round_trip)
     print({k: round(float(v), 3) for k, v in e.items()})
-    assert e["theta_corr"] > 0.9 and e["theta_slope"] > 0.3
+    assert e["theta_corr"] > 0.9 and e["theta_slope"] > 0.6  # 0.71 (0.43 about the mesh's rim)
     assert e["vectors"] < 0.1
     assert e["pose"] < 4.0
 
 
-@pytest.mark.xfail(reason="theta comes out at about 0.47 times its value: the mesh's jaw, hinged at the mesh's rim, "
-                          "moves the chin mostly away from the camera (0.11 back, 0.06 down at 10 degrees), and "
-                          "the tracker's depth follows that about 0.25 times, its drop of the chin front in the image "
-                          "0.75 times; pose: it reads rendered yaw 1.2 times (1.03 once the perspective parallax of "
-                          "the head's pivot is removed, which needs the camera's focal length). Not a scale error "
-                          "alone: a correction learned from 400 renders of the same face fixes the slope but leaves "
-                          "theta 1.5 degrees rms (2.4 max) off, and makes the receiver's video of real clips follow "
-                          "them worse (tracked mouth-and-jaw motion error 0.59 -> 0.66)", strict=False)
+@pytest.mark.xfail(reason="theta comes out at about 0.71 times its value, up to 5.9 degrees off (0.43 and 9.4 "
+                          "while the jaw turned about the mesh's rim, its chin going back 0.09 and down 0.07 at 10 "
+                          "degrees, and the tracker's depth followed the chin's going back about 0.25 times; since "
+                          "2026-11-29 the chin turns about a lower pivot, 0.03 back and 0.07 down); pose: it reads "
+                          "rendered yaw 1.2 times (1.03 once the perspective parallax of the head's pivot is "
+                          "removed, which needs the camera's focal length). Not a scale error alone: a correction "
+                          "learned from 400 renders of the same face fixes the slope but leaves theta 1.5 degrees "
+                          "rms (2.4 max) off, and makes the receiver's video of real clips follow them worse "
+                          "(tracked mouth-and-jaw motion error 0.59 -> 0.66)", strict=False)
 def test_parameters_are_recovered_within_the_issue_bounds(round_trip):
     e = errors(round_trip)
     assert e["theta"] < 1.0 and e["vectors"] < 0.05 and e["pose"] < 2.0

@@ -58,6 +58,10 @@ JAW_FOLLOWING = ("F4", "F14", "F15")
 KEEP_FACING = 0.05
 #: Bisection steps of the guard: what it keeps of the motion is within 2^-12 of the most that folds nothing.
 FOLD_STEPS = 12
+#: By the refined rule, how far below the hinge axis (base-face units, the face 1 high) the chin turns
+#: about: a jaw point's pivot is lowered in proportion to its depth below the axis, so that the jaw's
+#: motion stays affine (its border with the stretched skin exact) and the rim's points stay still.
+HINGE_DROP = 0.357
 _UPPER, _GAZE, _MOUTH, _BASIS = (span(g) for g in (UPPER_PARAMS, GAZE_PARAMS, MOUTH_PARAMS, BASIS_PARAMS))
 _ROT, _SHIFT = span(ROTATION_PARAMS), span(POSE_PARAMS[3:])
 #: The slots that shape the lower face, which the fold guard scales: the paper's, the mouth's, the motion basis.
@@ -91,11 +95,17 @@ class Deformer:
         if (rotation_matrix(axis, 1.0) @ chin)[1] > chin[1]:  # positive theta must lower the chin
             axis = -axis
         self._origin, self._axis = origin, axis
+        down = np.array([0.0, -1.0, 0.0]) - axis[1] * axis  # the face's down, across the axis
+        down /= np.linalg.norm(down)
+        #: per unit of its depth below the axis (down), how far a jaw point's pivot lies below the axis
+        self._pivot_drop = (HINGE_DROP if rule == "refined" else 0.0) * down / float(down @ chin)
+        self._down = down
         self._col = col
         self._w = np.ascontiguousarray(self.regions.weights)  # (n, 15)
         self._fpos = fpos
         self._jaw_idx = np.flatnonzero(self.regions.jaw)
-        self._jaw_rel = face.vertices[self._jaw_idx] - origin
+        self._jaw_pivots = self.jaw_pivots(face.vertices[self._jaw_idx])
+        self._jaw_rel = face.vertices[self._jaw_idx] - self._jaw_pivots
         self._base = np.asarray(face.vertices, dtype=np.float64)
         self._free = [col[n] for n in FREE]
         self._follow = [col[n] for n in JAW_FOLLOWING]
@@ -116,10 +126,18 @@ class Deformer:
         oriented so that positive theta opens the mouth (the chin moves down)."""
         return self._origin.copy(), self._axis.copy()
 
+    def jaw_pivots(self, points: np.ndarray) -> np.ndarray:
+        """(k, 3) the point each of ``points`` (k, 3) turns about with the jaw: on the hinge axis by the
+        paper's rule; by the refined rule lowered in proportion to the point's depth below the axis,
+        to HINGE_DROP below it at the chin (F4)."""
+        points = np.asarray(points, dtype=np.float64)
+        return self._origin + np.outer((points - self._origin) @ self._down, self._pivot_drop)
+
     def rotate_jaw(self, points: np.ndarray, theta_deg: float) -> np.ndarray:
-        """(k, 3) points rotated by theta_deg about the hinge axis."""
+        """(k, 3) points turned by theta_deg with the jaw (about :meth:`jaw_pivots`)."""
         rot = rotation_matrix(self._axis, theta_deg)
-        return (np.asarray(points, dtype=np.float64) - self._origin) @ rot.T + self._origin
+        pivots = self.jaw_pivots(points)
+        return (np.asarray(points, dtype=np.float64) - pivots) @ rot.T + pivots
 
     def feature_vectors(self, params: np.ndarray, f3_with_jaw: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """(15, 3) displacement vectors V1..V15 and the (3, 3) jaw rotation for params (13,).
@@ -137,7 +155,7 @@ class Deformer:
         vec[self._free] = p[1:].reshape(4, 3)
         follow = self._follow + ([self._col["F3"]] if f3_with_jaw else [])
         pts = self._fpos[follow]
-        vec[follow] = (pts - self._origin) @ rot.T + self._origin - pts
+        vec[follow] = self.rotate_jaw(pts, p[0]) - pts
         return vec, rot
 
     def deform(self, params: np.ndarray, f3_with_jaw: bool = False) -> np.ndarray:
@@ -201,7 +219,7 @@ class Deformer:
         equations (1) and (2) with the rule's weights, the jaw band rotated, plus the linear terms."""
         vec, rot = self.feature_vectors(p[: len(PAPER_PARAMS)], f3_with_jaw)
         out = self._base + self._w @ vec
-        out[self._jaw_idx] = self._jaw_rel @ rot.T + self._origin
+        out[self._jaw_idx] = self._jaw_rel @ rot.T + self._jaw_pivots
         out += (self.upper.basis @ p[_UPPER] + self.mouth.basis @ p[_MOUTH] + self._motion @ p[_BASIS]).reshape(-1, 3)
         return out
 
