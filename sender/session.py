@@ -196,6 +196,8 @@ class SendSession:
             and layer_pays(config.bitrate, reference.image.shape[1::-1])) else None
         self._aim, self._finest, self._level_share = self._parameter_aim(resolve_layout(config.layout, model))
         self._keeper: RateKeeper | None = None
+        #: copies of each frames packet over datagrams: --redundancy, fewer where --bitrate cannot carry them
+        self._copies = config.redundancy
         self._configure(DEFAULT_QUALITY if config.level is None else config.level)
         # once: a later _configure changes the level, not the layout, rule or face the view draws
         self._pixel_pose = PixelPose(model, self.header) if refines(model, self.header.names) else None
@@ -243,7 +245,7 @@ class SendSession:
         self.header = self._header(quality)
         self.encoder = PacketEncoder(self.header, self.config.packet_frames, self._model, self.config.dead_zone)
         keys = key_seconds(self.header)
-        self.datagrams = Datagrams(self.encoder.header()[0], self.config.redundancy,
+        self.datagrams = Datagrams(self.encoder.header()[0], self._copies,
                                    eager=round(EAGER_SECONDS / keys), sealer=self.sealer,
                                    eager_every=round(EAGER_GAP / keys),
                                    key_interval=self.header.key_interval) if self.config.datagrams else None
@@ -268,8 +270,11 @@ class SendSession:
                                               0 if self.sealer is None else self.sealer.overhead,
                                               self.config.redundancy if self.config.datagrams else None, self._finest)
                 self._keeper = RateKeeper(aim, fps, self.config.dead_zone)
-                self._check_room(quality, sample)
             self._configure(quality)
+            if first and aim is not None:
+                # on the header as it goes: the one configured before had cost the repeats of one 5 times
+                # its size (the bundled clip's first 4 s over udp:// at 2.6 kbit/s where they take 0.5)
+                self._check_room(quality, sample)
             if self._layer_rate is not None and not self._preview:
                 self._start_layer()
             results = chain(first, results)
@@ -351,7 +356,7 @@ class SendSession:
         report = self.feedback()
         self._link.hear(report)
         lean = self._link.lean
-        self.datagrams.copies = 0 if lean else self.config.redundancy
+        self.datagrams.copies = 0 if lean else self._copies
         self.encoder.frames_per_packet = self.config.frames_per_packet or (STREAM_FRAMES if lean else DATAGRAM_FRAMES)
         self.encoder.key_every = LEAN_KEYS if lean else 1
         self.datagrams.joined, self.datagrams.lean = self._link.heard, lean
@@ -364,19 +369,34 @@ class SendSession:
         """Over datagrams, where the parameters as they go (their first second ``sample`` at ``quality``,
         with their copies and keyframes and the header's repeats) leave the picture layer too little to
         pay, it runs only while the link is lean (no copies: the receiver reports no loss) where that
-        leaves it enough, else it is not sent (on a byte stream they keep within their share); where
-        they take more than --bitrate, says so."""
+        leaves it enough, else it is not sent (on a byte stream they keep within their share). Where
+        they take more than --bitrate with their copies, fewer copies go, down to none; where they still
+        do, says so."""
         bitrate, datagrams = self.config.bitrate, self.datagrams
         if bitrate is None:
             return
         header = self._header(quality)
-        cost = sample_bits_per_second(header, sample, self.config.packet_frames, self.config.dead_zone,
-                                      0 if self.sealer is None else self.sealer.overhead,
-                                      None if datagrams is None else self.config.redundancy)
-        over = ""
+
+        def cost_with(copies: int | None) -> float:
+            cost = sample_bits_per_second(header, sample, self.config.packet_frames, self.config.dead_zone,
+                                          0 if self.sealer is None else self.sealer.overhead, copies)
+            if datagrams is not None:
+                cost += datagrams.repeat_rate(key_seconds(header)) + datagrams.eager_rate(key_seconds(header))
+            return cost
+
+        cost, over = cost_with(None if datagrams is None else self._copies), ""
         if datagrams is not None:
-            cost += datagrams.repeat_rate(key_seconds(header)) + datagrams.eager_rate(key_seconds(header))
             over = " with the copies, keyframes and header repeats of udp://"
+            copies = self._copies
+            while cost > bitrate and copies > 0:  # --bitrate is the whole budget, the copies' too
+                copies -= 1
+                cost = cost_with(copies)
+            if copies < self._copies:
+                kept = f"{copies} go: up to {copies} datagrams lost in a row cost no frame" if copies else \
+                    "none go: a lost datagram costs frames until the next keyframe"
+                self._warn(f"with {self._copies} copies of each packet against loss the parameters would take more "
+                           f"than the {bitrate / 1000:g} kbit/s asked; {kept} (about {cost / 1000:.1f} kbit/s)")
+                self._copies = datagrams.copies = copies
         reference = self._face.picture
         if datagrams is not None:
             lean = sample_bits_per_second(header, sample, STREAM_FRAMES, self.config.dead_zone, 0, 0) + \
