@@ -392,8 +392,9 @@ class SendSession:
                 copies -= 1
                 cost = cost_with(copies)
             if copies < self._copies:
-                kept = f"{copies} go: up to {copies} datagrams lost in a row cost no frame" if copies else \
-                    "none go: a lost datagram costs frames until the next keyframe"
+                kept = ("none go: a lost datagram costs frames until the next keyframe",
+                        "one goes: a datagram lost alone costs no frame")[copies] if copies < 2 else \
+                    f"{copies} go: up to {copies} datagrams lost in a row cost no frame"
                 self._warn(f"with {self._copies} copies of each packet against loss the parameters would take more "
                            f"than the {bitrate / 1000:g} kbit/s asked; {kept} (about {cost / 1000:.1f} kbit/s)")
                 self._copies = datagrams.copies = copies
