@@ -21,6 +21,7 @@ import numpy as np
 
 from facedeform.codec.model.deform import Deformer, extended_params
 from facedeform.codec.model.face_model import load_base_face
+from facedeform.common.cli import run_main
 from facedeform.common.parameters import LAYOUTS, PAPER_PARAMS
 from facedeform.protocol.framing import DELTA, KEY, body_bits, kind_of
 from facedeform.protocol.quantise import QUALITIES
@@ -110,4 +111,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_bitstream.py", lambda: main() or 0))

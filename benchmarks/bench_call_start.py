@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 import facedeform
+from facedeform.common.cli import run_main
 from facedeform.experiment.baselines import CODECS, encode_decode
 from facedeform.experiment.clips import crops
 from facedeform.protocol.stream import Frame, Model, StreamDecoder
@@ -115,4 +116,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_call_start.py", lambda: main() or 0))

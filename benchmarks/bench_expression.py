@@ -31,6 +31,7 @@ import numpy as np
 
 import facedeform
 from facedeform.codec.model.deform import Deformer, extended_params
+from facedeform.common.cli import run_main
 from facedeform.common.parameters import MAX_COMPONENTS, PLACING_PARAMS
 from facedeform.experiment import metrics
 from facedeform.experiment.clips import crops, track
@@ -132,4 +133,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_expression.py", lambda: main() or 0))

@@ -29,6 +29,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import cv2  # noqa: E402  (after the thread settings, which these read on import)
 
+from facedeform.common.cli import run_main
+
 cv2.setNumThreads(1)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -193,4 +195,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_hd.py", lambda: main() or 0))

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from facedeform.common.cli import run_main
 from facedeform.sender.session import first_second
 from facedeform.sender.sources import open_source
 
@@ -156,4 +157,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_latency.py", lambda: main() or 0))

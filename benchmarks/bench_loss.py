@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from facedeform.codec.model.face_model import load_base_face
+from facedeform.common.cli import run_main
 from facedeform.protocol.encoder import COPIES, Datagrams
 from facedeform.protocol.stream import DatagramDecoder, Frame, PacketEncoder
 from facedeform.sender.config import DATAGRAM_FRAMES
@@ -296,4 +297,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_loss.py", lambda: main() or 0))

@@ -20,6 +20,8 @@ import sys
 import time
 from pathlib import Path
 
+from facedeform.common.cli import run_main
+
 ROOT = Path(__file__).resolve().parents[1]
 CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
 
@@ -76,4 +78,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_memory.py", lambda: main() or 0))

@@ -19,6 +19,7 @@ import random
 from pathlib import Path
 
 import facedeform
+from facedeform.common.cli import run_main
 from facedeform.experiment.clips import crops
 from facedeform.experiment.reporting import ReportingReceiver
 from facedeform.protocol.framing import MODEL, PICTURE, SYNC, packet_type
@@ -87,4 +88,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_paced_udp.py", lambda: main() or 0))

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 import facedeform
+from facedeform.common.cli import run_main
 from facedeform.common.parameters import MAX_COMPONENTS
 from facedeform.experiment.clips import crops
 from facedeform.experiment.metrics import psnr_rgb
@@ -126,4 +127,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_picture_layer.py", lambda: main() or 0))

@@ -24,6 +24,7 @@ import numpy as np
 from facedeform.codec.face_file.format import Face
 from facedeform.codec.model.face_model import ReferencePicture
 from facedeform.codec.render.picture import Placement
+from facedeform.common.cli import run_main
 from facedeform.common.parameters import GLOBAL_PARAMS
 from facedeform.protocol.stream import Header, steps_for
 from facedeform.receiver.face_view import PictureView
@@ -71,4 +72,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_picture_speed.py", lambda: main() or 0))

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from facedeform.codec.model.face_model import load_base_face
+from facedeform.common.cli import run_main
 from facedeform.protocol.stream import Frame, StreamDecoder
 from facedeform.receiver.face_view import FaceView
 from facedeform.receiver.output import open_writer
@@ -61,4 +62,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_pipeline.py", lambda: main() or 0))

@@ -24,6 +24,7 @@ from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import load_base_face
 from facedeform.codec.render.camera import Camera
 from facedeform.codec.render.render import Renderer
+from facedeform.common.cli import run_main
 from facedeform.receiver.face_view import FIELD_OF_VIEW, FRAMING
 
 FRAMES = 100
@@ -121,4 +122,4 @@ def write_png(path: str, image: np.ndarray) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_render.py", lambda: main() or 0))

@@ -11,13 +11,13 @@ open throughput for a typical frame packet and a 1 KiB model chunk.
 
 import argparse
 import os
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from facedeform.common.cli import run_main
 from facedeform.protocol.secure import SecureOpener, SecureSealer
 from facedeform.protocol.stream import PacketEncoder, frame_bytes
 from facedeform.sender.session import first_basis, read_dump, stream_header
@@ -97,4 +97,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(run_main("bench_secure.py", lambda: main() or 0))

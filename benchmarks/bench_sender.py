@@ -32,6 +32,7 @@ import numpy as np
 
 from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import load_base_face
+from facedeform.common.cli import run_main
 from facedeform.common.parameters import LAYOUTS
 from facedeform.protocol.quantise import DEAD_ZONE, DEFAULT_QUALITY, QUALITIES
 from facedeform.protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, quality_for_bitrate
@@ -322,4 +323,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_sender.py", lambda: main() or 0))

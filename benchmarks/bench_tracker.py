@@ -6,13 +6,13 @@ both found a face, tracking time per frame (video decoding excluded), and how
 many times the detector ran.
 """
 
-import sys
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from facedeform.common.cli import run_main
 from facedeform.sender.tracker import FaceTracker
 
 DEV = Path(__file__).resolve().parents[2] / "shared" / "samples" / "dev"
@@ -56,4 +56,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(run_main("bench_tracker.py", lambda: main() or 0))

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from facedeform.codec.model.face_model import load_base_face
+from facedeform.common.cli import run_main
 from facedeform.common.parameters import LAYOUTS
 from facedeform.experiment.metrics import psnr, ssim
 from facedeform.protocol.stream import PacketEncoder, frame_bytes
@@ -72,4 +73,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("bench_visibility.py", lambda: main() or 0))

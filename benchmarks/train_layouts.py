@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from facedeform.common.cli import run_main
 from facedeform.common.parameters import BODY_PARAMS, GLOBAL_PARAMS, POSE_PARAMS
 from facedeform.protocol import layouts as layouts_module
 from facedeform.protocol.basis import SCALE
@@ -105,4 +106,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("train_layouts.py", lambda: main() or 0))

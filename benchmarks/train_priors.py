@@ -24,6 +24,7 @@ from collections import defaultdict
 from pathlib import Path
 from unittest import mock
 
+from facedeform.common.cli import run_main
 from facedeform.protocol import encoder as encoder_module
 from facedeform.protocol.arith import AdaptiveBit
 from facedeform.protocol.priors import PATH, key_name, models_for
@@ -109,4 +110,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main("train_priors.py", lambda: main() or 0))

@@ -93,3 +93,10 @@ def test_keygen_refuses_to_write_a_key_to_stdout(tmp_path):
                             capture_output=True, timeout=60)
     assert_one_line_error(result, "fd-keygen")
     assert not (tmp_path / "-").exists()
+
+
+@pytest.mark.parametrize("script", ["bench_expression.py", "bench_picture_layer.py"])
+def test_a_benchmark_given_a_missing_clip_says_so_in_one_line(script, tmp_path):
+    result = run([sys.executable, str(ROOT / "benchmarks" / script), "/nonexistent/clip.mp4", "--out", str(tmp_path)])
+    assert_one_line_error(result, script)
+    assert "no such file" in result.stderr.decode()
