@@ -3,7 +3,9 @@
 Per frame the sender gives theta (degrees) and the vectors V2, V3, V8, V9:
 1. the jaw-following points F4, F14, F15 rotate by theta about the hinge axis
    F12-F13; their displacements are V4, V14, V15;
-2. jaw-region vertices rotate rigidly by the same rotation;
+2. jaw-region vertices rotate rigidly by the same rotation (by the refined rule,
+   each about a pivot lowered below the axis with its depth, so that the chin goes
+   down rather than back: :meth:`Deformer.jaw_pivots`);
 3. a stretch-region vertex X moves by V = (S1*Vi + S2*Vj + S3*Vk) / (S1+S2+S3),
    the projection weights of X on its feature triangle: X' = X + V.
 Fixed points (F1, F5, F6, F7, F10, F11, F12, F13) have V = 0. Everything that
