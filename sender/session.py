@@ -377,12 +377,12 @@ class SendSession:
             return
         header = self._header(quality)
 
+        keys = key_seconds(header)
+        repeats = 0.0 if datagrams is None else datagrams.repeat_rate(keys) + datagrams.eager_rate(keys)
+
         def cost_with(copies: int | None) -> float:
-            cost = sample_bits_per_second(header, sample, self.config.packet_frames, self.config.dead_zone,
-                                          0 if self.sealer is None else self.sealer.overhead, copies)
-            if datagrams is not None:
-                cost += datagrams.repeat_rate(key_seconds(header)) + datagrams.eager_rate(key_seconds(header))
-            return cost
+            return repeats + sample_bits_per_second(header, sample, self.config.packet_frames, self.config.dead_zone,
+                                                    0 if self.sealer is None else self.sealer.overhead, copies)
 
         cost, over = cost_with(None if datagrams is None else self._copies), ""
         if datagrams is not None:
@@ -398,11 +398,10 @@ class SendSession:
                 self._warn(f"with {self._copies} copies of each packet against loss the parameters would take more "
                            f"than the {bitrate / 1000:g} kbit/s asked; {kept} (about {cost / 1000:.1f} kbit/s)")
                 self._copies = datagrams.copies = copies
-        reference = self._face.picture
-        if datagrams is not None:
             lean = sample_bits_per_second(header, sample, STREAM_FRAMES, self.config.dead_zone, 0, 0) + \
-                datagrams.repeat_rate(key_seconds(header))
+                datagrams.repeat_rate(keys)
             self._parameter_costs = (cost, lean)
+        reference = self._face.picture
         if self._layer_rate is not None and reference is not None and datagrams is not None and \
                 not layer_pays(bitrate, reference.image.shape[1::-1], cost):
             said = f"the parameters take about {cost / 1000:.1f} of the {bitrate / 1000:g} kbit/s asked{over}: "

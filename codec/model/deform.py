@@ -105,6 +105,7 @@ class Deformer:
         self._col = col
         self._w = np.ascontiguousarray(self.regions.weights)  # (n, 15)
         self._fpos = fpos
+        self._fpivots = self.jaw_pivots(fpos)  # each feature point's, for the jaw-following ones
         self._jaw_idx = np.flatnonzero(self.regions.jaw)
         self._jaw_pivots = self.jaw_pivots(face.vertices[self._jaw_idx])
         self._jaw_rel = face.vertices[self._jaw_idx] - self._jaw_pivots
@@ -156,8 +157,8 @@ class Deformer:
         vec = np.zeros((len(FEATURE_NAMES), 3))
         vec[self._free] = p[1:].reshape(4, 3)
         follow = self._follow + ([self._col["F3"]] if f3_with_jaw else [])
-        pts = self._fpos[follow]
-        vec[follow] = self.rotate_jaw(pts, p[0]) - pts
+        pts, pivots = self._fpos[follow], self._fpivots[follow]
+        vec[follow] = (pts - pivots) @ rot.T + pivots - pts
         return vec, rot
 
     def deform(self, params: np.ndarray, f3_with_jaw: bool = False) -> np.ndarray:
