@@ -7,6 +7,8 @@ The encoder records what the decoder will output for each coded frame
 quantised value, so it is the only exact prediction of the receiver.
 """
 
+from collections.abc import Iterable
+
 import numpy as np
 
 from facedeform.common.errors import BitstreamError
@@ -269,9 +271,7 @@ class Datagrams:
             if kind == KEY:
                 k, last = self._key_place(packet), self._last_key
                 self._last_key = k
-                every = max(self._every, HEADER_EVERY) if self.lean and self._every else self._every
-                if k and not ending and ((not self.joined and k <= self._eager and _passes(self._eager_every, last, k))
-                          or (every and _passes(every, last, k))):
+                if not ending and self._repeats(last, k):
                     repeat = self._seal([self._header], preamble=True)
                     self.repeated += sum(map(len, repeat))
                     out += repeat
@@ -284,6 +284,26 @@ class Datagrams:
             if kind != END:
                 self._recent = ([] if kind == KEY else self._recent[1 - MAX_REDUNDANCY:]) + [packet]
         return out
+
+    def repeats_ahead(self, places: Iterable[int]) -> list[bool]:
+        """Whether the header would go again before each keyframe at ``places`` (ascending, after the
+        last one sent), as things stand (the sender's picture layer plans on them)."""
+        out, last = [], self._last_key
+        for place in places:
+            out.append(self._repeats(last, place))
+            last = place
+        return out
+
+    @property
+    def repeat_size(self) -> int:
+        """Bytes a repeat of the header takes (its sealing's few bytes aside)."""
+        return len(self._header)
+
+    def _repeats(self, last: int, place: int) -> bool:
+        """Whether the header goes again before a keyframe at ``place`` after one at ``last``."""
+        every = max(self._every, HEADER_EVERY) if self.lean and self._every else self._every
+        return place > 0 and ((not self.joined and place <= self._eager and _passes(self._eager_every, last, place))
+                              or (every > 0 and _passes(every, last, place)))
 
     def _key_place(self, packet: bytes) -> int:
         """The keyframe ``packet``'s place: its first frame's number over the key interval, or

@@ -10,6 +10,7 @@ video's.
 """
 
 from collections import deque
+from collections.abc import Callable
 from math import ceil
 
 import cv2
@@ -143,14 +144,18 @@ class PictureLayer:
     ``parameters``: bit/s the parameters are known to take where more than they aim at (over datagrams,
     with their copies and the header's repeats: at 10 kbit/s on liveportrait_d12 6.6 kbit/s, where they
     aim at 2; planned on the 2, the layer's first video frames had taken the first 2 s to 1.23 times
-    the rate).
+    the rate); ``repeats(seq, n)``: bits of the header's repeats that go with each of the n frames after
+    frame ``seq`` (over datagrams: a few hundred bytes each, which a window can hold one more of than
+    the parameters' mean foresees; sadtalker_WDA_KatieHill's had taken a window to 1.12 times the rate
+    at 10 kbit/s).
     :attr:`picture` is what the receiver draws of the last frame stepped, drawn when it is read (the
     layer's choices do not need it: at 1920x1080 drawing it cost the sender 5 ms a frame, and the
     model's picture whole another 15 where the choice is made on a smaller view, :data:`CHOICE_SIDE`).
     """
 
     def __init__(self, face: BaseFace, header: Header, bitrate: float, recent: deque[int], sealed: bool = False,
-                 datagrams: bool = False, parameters: float = 0.0) -> None:
+                 datagrams: bool = False, parameters: float = 0.0,
+                 repeats: Callable[[int, int], np.ndarray] | None = None) -> None:
         from facedeform.receiver.face_view import PictureView
 
         if face.picture is None:
@@ -176,6 +181,8 @@ class PictureLayer:
         self._fps = header.fps
         #: the parameters' bits a frame, a running mean, from what they aim at or, where more, are known to take
         self._parameter_bits = max(parameter_rate(bitrate), parameters) / header.fps
+        self._repeats = repeats
+        self._repeat_bits: float | None = None  # the header's repeats' share of them, a running mean
         self._credit = 0.0  # bits the video may still spend, against its share so far
         self._recent = recent
         self._window_bits = MARGIN * self._frame_bits * ((recent.maxlen or 0) + 1)
@@ -192,16 +199,19 @@ class PictureLayer:
         self.packets = self.bits = 0
 
     def step(self, seq: int, frame_bgr: np.ndarray, params: np.ndarray, encoder: PacketEncoder,
-             frame_packets: list[bytes]) -> list[bytes]:
+             frame_packets: list[bytes], repeated: int = 0) -> list[bytes]:
         """The layer's packets for frame ``seq`` (BGR, any size: scaled to the picture's), whose
-        decoded parameters are ``params`` and packets ``frame_packets``."""
+        decoded parameters are ``params`` and packets ``frame_packets``, of which ``repeated`` bits are
+        the header's repeats."""
         spent = 8 * stream_size(frame_packets, self._sealed)
         self._saved = min(self._saved + self._blocks_bits, 8.0 * SMALLEST)
         if self._look is not self._view:
             self._unplaced.append((seq, params))
         model = self._look.model_picture(params, seq)  # at the size the choice is made at
         packets: list[bytes] = []
-        room = self._room(spent)
+        if self._repeats is not None and self._repeat_bits is None:  # from what the next 2 seconds hold
+            self._repeat_bits = float(np.mean(self._repeats(seq - 1, self._recent.maxlen or 1)))
+        room = self._room(seq, spent)
         since = None if self._last_key is None else (seq - self._last_key + self._every) / self._fps
         every = self.key_every
         waiting = overdue = False
@@ -211,6 +221,8 @@ class PictureLayer:
             waiting, overdue = since > every, since > 2 * every
         key = since is None or (waiting and room >= (OVERDUE if overdue else 1.0) * self._key_size)
         self._parameter_bits += (spent - self._parameter_bits) / PARAMETER_MEMORY
+        if self._repeat_bits is not None:
+            self._repeat_bits += (repeated - self._repeat_bits) / PARAMETER_MEMORY
         share = (1 - BLOCKS_SHARE) * max(0.0, self._frame_bits - self._parameter_bits)
         self._credit = min(self._credit + share, BURST * share * self._fps)
         due = self._last_video is None or seq - self._last_video >= self._every
@@ -229,15 +241,19 @@ class PictureLayer:
         self._last = seq
         return packets
 
-    def _room(self, spent: float) -> float:
-        """Bits the layer may add to this frame's ``spent`` so that every 2-second window this frame falls
-        in keeps within the rate, with room left in it for the parameters of the frames still to come."""
+    def _room(self, seq: int, spent: float) -> float:
+        """Bits the layer may add to frame ``seq``'s ``spent`` so that every 2-second window this frame
+        falls in keeps within the rate, with room left in it for the parameters of the frames still to
+        come (and the header's repeats among them)."""
         recent = np.asarray(self._recent, dtype=np.float64)[::-1]  # newest first
         span = self._recent.maxlen or 0
         kept = np.r_[0.0, np.cumsum(recent)]  # bits of the newest 0, 1, ... frames before this one
-        later = np.arange(span + 1)[::-1]  # frames still to come in the window that keeps that many
         kept = np.r_[kept, np.full(span + 1 - len(kept), kept[-1])]
-        return self._window_bits - spent - float(np.max(kept + later * self._parameter_bits))
+        ahead = np.full(span, self._parameter_bits)
+        if self._repeats is not None:  # where they fall, not spread
+            ahead += self._repeats(seq, span) - self._repeat_bits
+        ahead = np.r_[0.0, np.cumsum(ahead)]  # bits of the next 0, 1, ... frames
+        return self._window_bits - spent - float(np.max(kept + ahead[::-1]))
 
     @property
     def picture(self) -> np.ndarray | None:

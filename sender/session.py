@@ -306,12 +306,13 @@ class SendSession:
                 self._start_layer()
             repeats_before = 0 if self.datagrams is None else self.datagrams.repeated
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
+            repeats = 0 if self.datagrams is None else 8 * (self.datagrams.repeated - repeats_before)
             if self._keeper is not None:  # on the frames' bits: the repeats' share was taken off its aim
-                repeats = 0 if self.datagrams is None else self.datagrams.repeated - repeats_before
-                self.encoder.dead_zone = self._keeper.step(8 * (stream_size(packets, self.sealed) - repeats))
+                self.encoder.dead_zone = self._keeper.step(8 * stream_size(packets, self.sealed) - repeats)
             drawn_from = self.encoder.reconstruction  # what the receiver decodes of this frame
             if self.picture is not None and result.frame is not None and drawn_from is not None:
-                packets = self._seal(self.picture.step(seq, result.frame, drawn_from, self.encoder, packets)) + packets
+                packets = self._seal(self.picture.step(seq, result.frame, drawn_from, self.encoder, packets,
+                                                       repeats)) + packets
             if self._pacing is not None:
                 packets = self._seal(self._pacing.step(8 * stream_size(packets, self.sealed), sum(self._recent))) \
                     + packets
@@ -331,7 +332,21 @@ class SendSession:
         if self._layer_rate is not None and (self._link.lean or not self._lean_layer):
             self._layer_counts = self._layer_counts or (0, 0)
             self.picture = PictureLayer(self._face, self.header, self._layer_rate, self._recent, self.sealed,
-                                        self.config.datagrams, self._parameter_costs[self._link.lean])
+                                        self.config.datagrams, self._parameter_costs[self._link.lean],
+                                        None if self.datagrams is None else self._repeats_ahead)
+
+    def _repeats_ahead(self, seq: int, count: int) -> np.ndarray:
+        """Bits of the header's repeats over datagrams that go with each of the ``count`` frames after
+        frame ``seq``, as the parameters' keyframes fall and the repeats' schedule now stands."""
+        h, every, datagrams = self.header, self.encoder.key_every, self.datagrams
+        bits = np.zeros(count)
+        if datagrams is None:
+            return bits
+        span = h.key_interval * h.divisor * every  # frames between keyframes
+        frames = range(-(-(seq + 1) // span) * span, seq + 1 + count, span)
+        repeats = datagrams.repeats_ahead(f // (h.key_interval * h.divisor) for f in frames)
+        bits[[f - seq - 1 for f, r in zip(frames, repeats) if r]] = 8 * datagrams.repeat_size
+        return bits
 
     def _stop_layer(self) -> None:
         """No picture layer from this frame on (its packets and bits stay counted)."""

@@ -160,3 +160,18 @@ def test_copies_that_the_rate_cannot_carry_do_not_go():
     assert session.datagrams.copies < 3 and sum("copies" in line for line in said) == 1
     assert max(sum(bits[i:i + 50]) for i in range(len(bits) - 49)) <= 1.1 * 3000 * 2.0
     assert [f.seq for f in frames] == list(range(75))
+
+
+def test_a_session_foresees_the_frames_its_headers_repeats_go_with():
+    """What the picture layer plans a window on (SendSession._repeats_ahead): from the first frame, the
+    header's repeats over the next 60 frames fall on the frames and with the bits they then take."""
+    session = SendSession(str(CLIP), SendConfig(datagrams=True))
+    went, foreseen = [], None
+    for i, _ in enumerate(session.packets()):
+        if i == 1:  # the first frame's datagrams
+            foreseen, before = session._repeats_ahead(0, 60), session.datagrams.repeated
+        elif i > 1 and len(went) < 60:
+            went += [0] * (session.frame_count - 1 - len(went))
+            went[-1] += 8 * (session.datagrams.repeated - before)
+            before = session.datagrams.repeated
+    assert sum(b > 0 for b in went) >= 2 and list(foreseen) == went

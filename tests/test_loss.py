@@ -378,3 +378,26 @@ def test_a_receiver_restarted_mid_call_starts_at_once_from_the_headers_it_kept(t
     seq = np.load(tmp_path / "again" / "recv.npz")["seq"]
     assert seq[0] % KEY == 0 and seq[0] > 0 and stats["concealed"] == 0 and stats["ended"]
     np.testing.assert_array_equal(seq, np.arange(seq[0], N))
+
+
+def test_the_headers_repeats_are_foreseen_where_they_will_go():
+    """The sender's picture layer plans each 2-second window on the header's repeats still to come in it
+    (sender/picture_layer.PictureLayer): Datagrams.repeats_ahead says which keyframes will carry one,
+    eager or later, before and after the receiver joins, and at every 2nd key place as on a clean link."""
+    enc = PacketEncoder(header(), 1)
+    head = enc.header()
+    pack = Datagrams(head[0], copies=0, header_every=3, eager=5, eager_every=2, key_interval=KEY)
+    out = pack.add(head)
+    tracks = smooth_tracks(KEY * 20)
+    out += pack.add(enc.frame(tracks[0], True))  # place 0
+    foreseen = pack.repeats_ahead(range(1, 12))
+    for i, x in enumerate(tracks[1:], 1):
+        if i == 12 * KEY:  # from place 12 on: joined, keyframes at every 2nd place
+            pack.joined, enc.key_every = True, 2
+            foreseen += pack.repeats_ahead(range(12, 20, 2))
+        out += pack.add(enc.frame(x, True))
+    keys = [i for i, d in enumerate(out) if header().ident in d]  # keyframe packets name their header
+    sent = [out[k - 1] == head[0] for k in keys[1:]]  # places 1-11, then 12, 14, 16, 18
+    # eager past each multiple of 2 up to place 5 (2, 4), then past each multiple of 3 (3, 6, 9, 12, 15, 18)
+    assert foreseen == sent == [False, True, True, True, False, True, False, False, True, False, False,
+                                True, False, True, True]
