@@ -112,10 +112,12 @@ def main() -> None:
     p.add_argument("--bitrate", type=float, metavar="KBPS", help="fd-send --bitrate, the picture layer off "
                    "(default: fd-send's defaults, a quantiser level)")
     p.add_argument("--level", type=int, help="fd-send --level (default: fd-send's)")
+    p.add_argument("--params", default="auto", metavar="LAYOUT", help="fd-send --params: the parameters sent "
+                   "(default: %(default)s, the speaker's own motion basis; 'mouth' or 'paper' for the region rule's)")
     p.add_argument("--motion", type=int, default=MAX_COMPONENTS, help="fd-enroll --motion: most patterns in the "
                    "speaker's motion basis (default: %(default)s, as fd-experiment enrols)")
     args = p.parse_args()
-    options: dict = {} if args.level is None else {"level": args.level}
+    options: dict = {"layout": args.params} | ({} if args.level is None else {"level": args.level})
     if args.bitrate is not None:
         options.update(bitrate=1000 * args.bitrate, picture_layer=False)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from facedeform.codec.model.deform import PRESETS, Deformer, extended_params
 from facedeform.codec.model.face_model import load_base_face
 from facedeform.codec.model.mouth import LOWER_LIP_PARAMS
-from facedeform.codec.model.regions import RULES
+from facedeform.codec.model.regions import FEATURE_NAMES, RULES
 from facedeform.common.errors import InputError
 from facedeform.common.parameters import LAYOUTS, MOUTH_PARAMS, PAPER_PARAMS, slots
 
@@ -206,3 +206,22 @@ def test_the_fold_guard_changes_only_what_would_fold():
         assert_allclose(drawn, held + s * (params - held), rtol=0, atol=1e-15)
         assert d.would_fold(held + (s + 2.0 ** -11) * (params - held))
     assert 3 <= guarded <= 57
+
+
+def test_a_speakers_closed_mouth_opens_without_folding(face):
+    """A speaker's mesh (the sample's, fitted to a closed mouth) takes each vertex's region from the
+    shipped mesh (codec/model/regions): by its own geometry its lower lip's outer vertices by the
+    corners fell in the upper lip's regions, and the lower lip sent 0.01 down folded the triangles
+    between them and the inner lip (the fold guard then held the lips 0.013 apart)."""
+    deformer = Deformer(face.model, "refined")
+    by_corners = [319, 325, 403, 89, 96, 179]
+    f1, f2 = (FEATURE_NAMES.index(n) for n in ("F1", "F2"))
+    assert not deformer.regions.weights[by_corners][:, [f1, f2]].any()
+    rest = face.model.vertices
+    for down in (0.02, 0.04, 0.06):
+        p = np.zeros(len(PAPER_PARAMS))
+        p[PAPER_PARAMS.index("v3y")] = -down
+        p = extended_params(PAPER_PARAMS, p)
+        assert not deformer.would_fold(p)
+        out = deformer.deform_extended(p)
+        assert out[13, 1] - out[14, 1] == pytest.approx(rest[13, 1] - rest[14, 1] + down, abs=1e-3)

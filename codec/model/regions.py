@@ -18,7 +18,7 @@ that sender and receiver blend alike:
 - "paper": equations (1) and (2) exactly, nothing else; every vertex takes the
   triangle its projection falls in (the nearest one, clipped, where it falls in
   none: only fixed-point regions at the forehead corners).
-- "refined" (the default): two departures, both for the shape of an opening
+- "refined" (the default): three departures, all for the shape of an opening
   mouth (measured in docs/deformation.md):
   * The inner lips never take the slit's thin triangles (F9, F8, F2), (F9, F3, F8):
     seen from O the lip curve wanders in and out of them, and their weights along
@@ -32,15 +32,23 @@ that sender and receiver blend alike:
     agree on both sides of every border a lower-lip region shares (F4's weight is
     0 on the edge F3-F8 shared with the slit, F3's on the edge F4-F8 shared with
     the jowl), so the motion stays continuous, and F3 still moves by exactly V3.
+  * A speaker's own mesh (a face file's: the shipped mesh's topology and feature
+    points) takes each vertex's region, and whether it is the jaw's, from the
+    shipped mesh, and its weights in that region from its own geometry. Fitted
+    to a closed mouth, a speaker's lower lip near the corners sits so high that
+    its outer vertices fell in the upper lip's regions (F1, F2) while the inner
+    lip's stayed in the lower's, and an opening mouth turned the triangles
+    between them over (the fold guard then drew the mouth scaled back).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
-from facedeform.codec.model.face_model import BaseFace
+from facedeform.codec.model.face_model import BaseFace, load_base_face
 from facedeform.common.errors import InputError
 
 FEATURE_NAMES: tuple[str, ...] = tuple(f"F{i}" for i in range(1, 16))
@@ -115,6 +123,21 @@ def check_rule(rule: str) -> str:
 def build_region_map(face: BaseFace, rule: str = DEFAULT_RULE) -> RegionMap:
     """Assign every vertex of face to a stretch or jaw region by ``rule`` (see module docstring)."""
     check_rule(rule)
+    shipped = load_base_face()
+    same = face.faces.shape == shipped.faces.shape and bool(np.array_equal(face.faces, shipped.faces)) \
+        and face.meta == shipped.meta
+    return _region_map(face, rule, _shipped_map() if rule == "refined" and same else None)
+
+
+@cache
+def _shipped_map() -> RegionMap:
+    """The shipped mesh's map by the refined rule, whose membership a speaker's own mesh takes."""
+    return _region_map(load_base_face(), "refined", None)
+
+
+def _region_map(face: BaseFace, rule: str, like: RegionMap | None) -> RegionMap:
+    """:func:`build_region_map`, with each vertex's membership (region, jaw) taken from ``like``
+    where given."""
     meta = face.meta
     fpos = feature_positions(face)
     index = {n: i for i, n in enumerate(FEATURE_NAMES)}
@@ -136,9 +159,13 @@ def build_region_map(face: BaseFace, rule: str = DEFAULT_RULE) -> RegionMap:
     up = np.cross(f12 - origin, f13 - origin)
     up *= -np.sign((f4 - origin) @ up)
     jaw = ~inside_any & ((x - origin) @ up < 0)
+    if like is not None:
+        jaw, covered = like.jaw.copy(), like.covered.copy()
+        best = np.where(jaw, best, like.region)
 
-    w = np.clip(all_w[best, np.arange(n)], 0.0, None)
-    w /= w.sum(axis=1, keepdims=True)
+    w = np.nan_to_num(np.clip(all_w[best, np.arange(n)], 0.0, None))
+    total = w.sum(axis=1, keepdims=True)
+    w = np.divide(w, total, out=np.full_like(w, 1 / 3), where=total > 0)
     weights = np.zeros((n, len(FEATURE_NAMES)))
     np.add.at(weights, (np.arange(n)[:, None], triangles[best]), w)
     weights[jaw] = 0.0
