@@ -101,6 +101,11 @@ FIRST_KEY_BLURS = (1.0, 2.0, 3.0)
 #: the bundled clip's first 2 s to 1.21 times the rate at 8 kbit/s to a receiver that does not report,
 #: its first key still in the window. The most blurred keys are about half the sharp ones.
 OVERDUE = 0.5
+#: Seconds over which the video frames after a blurred key sharpen back, from the key's blur to none:
+#: sent sharp, the first re-coded what the key left out (sadtalker_WDA_KatieHill at 4 kbit/s: 2,408 bits
+#: after a key of 1,912, and no room for another video frame until frame 23). 2 s: +0.12 dB there, its
+#: 5th percentile 15.97 to 16.74; 1 s: -0.14 dB; 4 s: +0.03 (docs/picture_layer.md).
+SHARPEN = 2.0
 
 
 def layer_rate(bitrate: float) -> float:
@@ -194,6 +199,7 @@ class PictureLayer:
         #: seconds between keys (None: the first only)
         self.key_every: float | None = KEY_EVERY if datagrams else None
         self._last_key: int | None = None
+        self._soft = (0.0, 0)  # (the blur of the last key, its frame): the video frames after it sharpen back
         self._last_video: int | None = None  # the last frame a video frame went with
         self._last: int | None = None  # the last frame stepped
         self.packets = self.bits = 0
@@ -275,7 +281,7 @@ class PictureLayer:
         if self._encoder is not None:
             self._encoder.close()
 
-    def _fitted_key(self, small: np.ndarray, sharp_most: float, most: float) -> tuple[bytes, int]:
+    def _fitted_key(self, seq: int, small: np.ndarray, sharp_most: float, most: float) -> tuple[bytes, int]:
         """(a key of ``small``, the bits its sharp try took more): ``small`` as it is if its key takes at
         most ``sharp_most`` bits, else blurred as little as brings it under ``most`` (the most blurred if
         none does), each try on an encoder of its own; the one whose key goes codes the call from then on."""
@@ -290,6 +296,7 @@ class PictureLayer:
         if self._encoder is not None:
             self._encoder.close()
         self._encoder = encoder
+        self._soft = (blur, seq)
         return video, 8 * (sharp - len(video))
 
     def _sized(self, frame_bgr: np.ndarray) -> np.ndarray:
@@ -313,12 +320,15 @@ class PictureLayer:
             cv2.cvtColor(shrunk(bgr, self._video_size), cv2.COLOR_BGR2RGB)
         sharper = 0  # bits a sharp key would have taken more
         if self._encoder is None:
-            video, sharper = self._fitted_key(small, FIRST_KEY_SHARE * self._window_bits,
+            video, sharper = self._fitted_key(seq, small, FIRST_KEY_SHARE * self._window_bits,
                                               FIRST_KEY_AIM * self._window_bits)
         elif key and room < self._key_size:
-            video, sharper = self._fitted_key(small, room - self._key_packing, room - self._key_packing)
+            video, sharper = self._fitted_key(seq, small, room - self._key_packing, room - self._key_packing)
         else:
-            video = self._encoder.encode(small, key)
+            blur, since = self._soft
+            blur *= 1 - (seq - since) / (SHARPEN * self._fps)
+            video = self._encoder.encode(cv2.GaussianBlur(small, (0, 0), blur) if blur > 0.25 and not key else small,
+                                         key)
         data = self._layer.make(seq, video, key, model, self._look.carry, lambda parts, before: choose_blocks(
             model, parts, looked, before, favour=favour, shrink=self._shrink))
         packets = [] if data is None else encoder.picture(seq, data)
