@@ -2,7 +2,8 @@
 
 For each clip (its 256x256 face crop and its speaker's face model, made as fd-experiment makes
 them: the face from the first second, motion basis from the first half), fd-send's defaults
-(the speaker's face file held by the receiver, no picture layer), decoded by the library.
+(the speaker's face file held by the receiver, no picture layer; ``--params`` another layout, as
+fd-send's), decoded by the library.
 Beside it, drawn by the same view of the same face (reference picture, rings, background,
 head pose and global motion as sent):
 
