@@ -325,7 +325,9 @@ class PictureLayer:
         elif key and room < self._key_size:
             video, sharper = self._fitted_key(seq, small, room - self._key_packing, room - self._key_packing)
         else:
-            blur, since = self._soft = (0.0, seq) if key else self._soft  # a sharp key: sharp frames after it
+            if key:  # a sharp key: sharp frames after it
+                self._soft = (0.0, seq)
+            blur, since = self._soft
             blur *= 1 - (seq - since) / (SHARPEN * self._fps)
             video = self._encoder.encode(cv2.GaussianBlur(small, (0, 0), blur) if blur > 0.25 else small, key)
         data = self._layer.make(seq, video, key, model, self._look.carry, lambda parts, before: choose_blocks(

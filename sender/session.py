@@ -342,9 +342,10 @@ class SendSession:
         bits = np.zeros(count)
         if datagrams is None:
             return bits
-        span = h.key_interval * h.divisor * every  # frames between keyframes
+        place = h.key_interval * h.divisor  # frames a key place spans
+        span = place * every  # frames between keyframes
         frames = range(-(-(seq + 1) // span) * span, seq + 1 + count, span)
-        repeats = datagrams.repeats_ahead(f // (h.key_interval * h.divisor) for f in frames)
+        repeats = datagrams.repeats_ahead(f // place for f in frames)
         bits[[f - seq - 1 for f, r in zip(frames, repeats) if r]] = 8 * datagrams.repeat_size
         return bits
 
