@@ -12,7 +12,6 @@ and decode frames per second. A ``--params paper`` dump gives two layouts: the
 paper's 13 parameters, and with head rotation (what fd-send sends).
 """
 
-import argparse
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -21,7 +20,7 @@ import numpy as np
 
 from facedeform.codec.model.deform import Deformer, extended_params
 from facedeform.codec.model.face_model import load_base_face
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.common.parameters import LAYOUTS, PAPER_PARAMS
 from facedeform.protocol.framing import DELTA, KEY, body_bits, kind_of
 from facedeform.protocol.quantise import QUALITIES
@@ -82,7 +81,7 @@ def bench(path: Path, layout: tuple[str, ...], quality: int, dead_zone: float, a
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("dumps", nargs="+", type=Path, help="sender --dump files (.npz)")
     p.add_argument("--frames-per-packet", type=int, default=4)
     p.add_argument("--qualities", type=int, nargs="*", default=list(QUALITIES))

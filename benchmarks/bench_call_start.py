@@ -13,7 +13,6 @@ until the first frame drawn with its preview and with the face itself, and the m
     .venv/bin/python benchmarks/bench_call_start.py /path/to/dev/*.mp4 --rates 2 4 8 --out results/
 """
 
-import argparse
 import json
 from math import ceil
 from pathlib import Path
@@ -21,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 import facedeform
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.experiment.baselines import CODECS, encode_decode
 from facedeform.experiment.clips import crops
 from facedeform.protocol.stream import Frame, Model, StreamDecoder
@@ -70,7 +69,7 @@ def theirs(frames: list, fps: float, codec: str, work: Path) -> dict:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("clips", nargs="+", type=Path)
     p.add_argument("--rates", type=float, nargs="+", default=[2, 4, 8], metavar="KBPS")
     p.add_argument("--out", type=Path, default=Path("results"))

@@ -24,7 +24,6 @@ the target), which tells the fit's loss from the coding's and the drawing's.
     .venv/bin/python benchmarks/bench_expression.py /path/to/dev/*.mp4 /path/to/dev/*.mpg --out results/
 """
 
-import argparse
 import json
 from pathlib import Path
 
@@ -32,12 +31,13 @@ import numpy as np
 
 import facedeform
 from facedeform.codec.model.deform import Deformer, extended_params
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.common.parameters import MAX_COMPONENTS, PLACING_PARAMS
 from facedeform.experiment import metrics
 from facedeform.experiment.clips import crops, track
 from facedeform.protocol.stream import frame_bytes
 from facedeform.receiver.face_view import PictureView
+from facedeform.sender.analysis import LAYOUT_NAMES
 from facedeform.sender.calibrate import lip_gap
 from facedeform.sender.config import SendConfig
 from facedeform.sender.session import SendSession, stream_header
@@ -107,13 +107,13 @@ TABLE = (("kbit/s", "kbit_per_s", "{:.2f}"), ("PSNR ours", "psnr_ours", "{:.2f}"
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("clips", nargs="+", type=Path)
     p.add_argument("--out", type=Path, default=Path("results"))
     p.add_argument("--bitrate", type=float, metavar="KBPS", help="fd-send --bitrate, the picture layer off "
                    "(default: fd-send's defaults, a quantiser level)")
     p.add_argument("--level", type=int, help="fd-send --level (default: fd-send's)")
-    p.add_argument("--params", default="auto", metavar="LAYOUT", help="fd-send --params: the parameters sent "
+    p.add_argument("--params", choices=LAYOUT_NAMES, default="auto", help="fd-send --params: the parameters sent "
                    "(default: %(default)s, the speaker's own motion basis; 'mouth' or 'paper' for the region rule's)")
     p.add_argument("--motion", type=int, default=MAX_COMPONENTS, help="fd-enroll --motion: most patterns in the "
                    "speaker's motion basis (default: %(default)s, as fd-experiment enrols)")

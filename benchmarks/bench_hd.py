@@ -14,7 +14,6 @@ nothing. The figure that travels between machines is the ratio of the two decode
     .venv/bin/python benchmarks/bench_hd.py [--sizes 256 512 720 1080] [--out results/]
 """
 
-import argparse
 import json
 import os
 import subprocess
@@ -29,7 +28,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import cv2  # noqa: E402  (after the thread settings, which these read on import)
 
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 
 cv2.setNumThreads(1)
 
@@ -165,7 +164,7 @@ def run(height: int, folder: Path, layer: float | None) -> dict:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--sizes", type=int, nargs="+", default=list(SIZES), choices=list(SIZES))
     p.add_argument("--out", type=Path, default=Path("results"))
     p.add_argument("--layer", type=float, metavar="KBPS",

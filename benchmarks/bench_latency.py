@@ -19,7 +19,6 @@ after installation).
     python benchmarks/bench_latency.py --seconds 60 --frames-per-packet 1 2 4
 """
 
-import argparse
 import datetime
 import os
 import subprocess
@@ -30,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.sender.session import first_second
 from facedeform.sender.sources import open_source
 
@@ -125,7 +124,7 @@ def measure(clip: Path, seconds: float, frames_per_packet: int, warm: bool = Fal
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("clip", nargs="?", type=Path, default=CLIP)
     p.add_argument("--seconds", type=float, default=20.0, help="input played in real time (default 20)")
     p.add_argument("--frames-per-packet", type=int, nargs="*", default=[2], help="fd-send's option (default 2)")

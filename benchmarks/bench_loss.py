@@ -27,7 +27,6 @@ each layout's dump (``DUMP.npz``, ``DUMP.paper.npz``, ``DUMP.full.npz``).
 junk datagrams at rising rates; prints the real frames delivered at each rate.
 """
 
-import argparse
 import json
 import socket
 import subprocess
@@ -40,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from facedeform.codec.model.face_model import load_base_face
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.protocol.encoder import COPIES, Datagrams
 from facedeform.protocol.stream import DatagramDecoder, Frame, PacketEncoder
 from facedeform.sender.config import DATAGRAM_FRAMES
@@ -273,7 +272,7 @@ def bench_flood(rates: list[int], seconds: float) -> None:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("what", choices=("loss", "bursts", "udp", "header", "flood"))
     p.add_argument("dumps", nargs="*", type=Path, help="fd-send --dump files (the default layout's)")
     p.add_argument("--seeds", type=int, default=5)

@@ -11,7 +11,6 @@ grow with the call.
     python benchmarks/bench_memory.py --minutes 1 10 60
 """
 
-import argparse
 import datetime
 import json
 import os
@@ -20,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
@@ -62,7 +61,7 @@ def measure(clip: Path, minutes: float) -> tuple[int, float, float, float]:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("clip", nargs="?", type=Path, default=CLIP)
     p.add_argument("--minutes", type=float, nargs="*", default=[1.0, 10.0], help="input lengths (default 1 10)")
     if sys.argv[1:2] == ["--send"]:

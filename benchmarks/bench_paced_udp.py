@@ -13,13 +13,12 @@ face's bytes sent (its rounds included), and when the picture layer started.
     .venv/bin/python benchmarks/bench_paced_udp.py /path/to/dev/*.mp4 --rates 4 8 --out results/
 """
 
-import argparse
 import json
 import random
 from pathlib import Path
 
 import facedeform
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.experiment.clips import crops
 from facedeform.experiment.reporting import ReportingReceiver
 from facedeform.protocol.framing import MODEL, PICTURE, SYNC, packet_type
@@ -63,7 +62,7 @@ def call(path: Path, fps: float, face, kbps: float, reports: bool = True, join: 
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("clips", nargs="+", type=Path)
     p.add_argument("--rates", type=float, nargs="+", default=[4, 8], metavar="KBPS")
     p.add_argument("--out", type=Path, default=Path("results"))

@@ -16,7 +16,6 @@ counts every datagram after the header.
     .venv/bin/python benchmarks/bench_picture_layer.py /path/to/dev/*.mp4 --rates 1.5 4 10 30 --out results/
 """
 
-import argparse
 import json
 import time
 from pathlib import Path
@@ -24,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 import facedeform
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.common.parameters import MAX_COMPONENTS
 from facedeform.experiment.clips import crops
 from facedeform.experiment.metrics import psnr_rgb
@@ -95,7 +94,7 @@ def measured(clip, session, kbps, per_frame, drawn, send_s, receive_s) -> dict:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("clips", nargs="+", type=Path)
     p.add_argument("--rates", type=float, nargs="+", default=[1.5, 4, 10, 30], metavar="KBPS")
     p.add_argument("--out", type=Path, default=Path("results"))

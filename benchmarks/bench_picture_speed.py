@@ -9,7 +9,6 @@ are timed together, as fd-recv runs them per frame.
     .venv/bin/python benchmarks/bench_picture_speed.py [--size 512] [--frames 300]
 """
 
-import argparse
 import os
 import subprocess
 import sys
@@ -24,7 +23,7 @@ import numpy as np
 from facedeform.codec.face_file.format import Face
 from facedeform.codec.model.face_model import ReferencePicture
 from facedeform.codec.render.picture import Placement
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.common.parameters import GLOBAL_PARAMS
 from facedeform.protocol.stream import Header, steps_for
 from facedeform.receiver.face_view import PictureView
@@ -34,7 +33,7 @@ CLIP = ROOT / "samples" / "grid_bbaf2n.mpg"
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--frames", type=int, default=300)
     args = p.parse_args()

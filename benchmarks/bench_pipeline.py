@@ -5,7 +5,6 @@ sender frames/s (decode video + track + estimate + encode), receiver frames/s
 (decode stream + deform + render, and with H.264 writing), bits per frame, bit/s.
 """
 
-import argparse
 import datetime
 import io
 import tempfile
@@ -13,7 +12,7 @@ import time
 from pathlib import Path
 
 from facedeform.codec.model.face_model import load_base_face
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.protocol.stream import Frame, StreamDecoder
 from facedeform.receiver.face_view import FaceView
 from facedeform.receiver.output import open_writer
@@ -51,7 +50,7 @@ def bench(clip: Path, size: int) -> str:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("clips", nargs="*", type=Path, default=[ROOT / "samples" / "grid_bbaf2n.mpg"])
     p.add_argument("--size", type=int, default=512, help="receiver output size (default 512)")
     args = p.parse_args()

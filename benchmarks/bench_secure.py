@@ -9,7 +9,6 @@ waits for the rest of its packet) and the crypto time per packet. Then seal and
 open throughput for a typical frame packet and a 1 KiB model chunk.
 """
 
-import argparse
 import os
 import tempfile
 import time
@@ -17,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.protocol.secure import SecureOpener, SecureSealer
 from facedeform.protocol.stream import PacketEncoder, frame_bytes
 from facedeform.sender.session import first_basis, read_dump, stream_header
@@ -72,7 +71,7 @@ def throughput(size: int, n: int = 20000) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("dump", nargs="?", help="parameter dump (.npz) from fd-send --dump; default: the sample clip")
     args = p.parse_args(argv)
     params, found, names, fps = clip_params(args.dump)

@@ -19,7 +19,6 @@ of the decoded parameters), so the personal figures are what a call made after e
 docs/results/rd_fidelity_s{smoothing}.csv and .png.
 """
 
-import argparse
 import dataclasses
 import sys
 import time
@@ -32,7 +31,7 @@ import numpy as np
 
 from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import load_base_face
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.common.parameters import LAYOUTS
 from facedeform.protocol.quantise import DEAD_ZONE, DEFAULT_QUALITY, QUALITIES
 from facedeform.protocol.stream import Frame, Header, PacketEncoder, StreamDecoder, frame_bytes, quality_for_bitrate
@@ -305,7 +304,7 @@ def smoothing_table() -> None:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("what", choices=("speed", "clips", "rd", "smoothing"))
     p.add_argument("--smoothing", type=float, default=1.0)
     p.add_argument("--patterns", type=int, nargs="*", default=[8, 12], help="rd: motion basis sizes")

@@ -10,13 +10,12 @@ LAYOUT``); fd-send's header, coding basis and dead zone; the generic face at the
 more than ``--threshold`` grey levels in any channel, and the worst frame's PSNR.
 """
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 
 from facedeform.codec.model.face_model import load_base_face
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.common.parameters import LAYOUTS
 from facedeform.experiment.metrics import psnr, ssim
 from facedeform.protocol.stream import PacketEncoder, frame_bytes
@@ -54,7 +53,7 @@ def bench(path: Path, layout_name: str, qualities: list[int], args, face) -> lis
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("dumps", nargs="+", type=Path, help="fd-send --dump files (.npz)")
     p.add_argument("--params", choices=sorted(LAYOUTS), default="paper", help="layout to code (default paper)")
     p.add_argument("--qualities", type=int, nargs="*", default=[1, 2, 3, 4])

@@ -17,14 +17,13 @@ basis of all of them.
     .venv/bin/python benchmarks/train_layouts.py dumps/*.npz [--check]
 """
 
-import argparse
 import hashlib
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.common.parameters import BODY_PARAMS, GLOBAL_PARAMS, POSE_PARAMS
 from facedeform.protocol import layouts as layouts_module
 from facedeform.protocol.basis import SCALE
@@ -75,7 +74,7 @@ def learnt(dumps: list) -> np.ndarray:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("dumps", nargs="+", type=Path)
     p.add_argument("--check", action="store_true", help="print bits per frame, clip by clip held out")
     args = p.parse_args()

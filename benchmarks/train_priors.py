@@ -17,14 +17,13 @@ table trained on every dump, and one trained on the other clips' dumps only
 (what a speaker outside the training set gets).
 """
 
-import argparse
 import hashlib
 import json
 from collections import defaultdict
 from pathlib import Path
 from unittest import mock
 
-from facedeform.common.cli import run_main
+from facedeform.common.cli import ArgumentParser, run_main
 from facedeform.protocol import encoder as encoder_module
 from facedeform.protocol.arith import AdaptiveBit
 from facedeform.protocol.priors import PATH, key_name, models_for
@@ -96,7 +95,7 @@ def check(paths: list[Path]) -> None:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("dumps", nargs="+", type=Path, help="fd-send --dump files (.npz), named CLIP.LAYOUT.npz")
     p.add_argument("--check", action="store_true", help="measure instead of writing the table")
     p.add_argument("-o", "--output", type=Path, default=PATH, help=f"table to write (default {PATH})")

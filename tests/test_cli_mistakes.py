@@ -100,3 +100,13 @@ def test_a_benchmark_given_a_missing_clip_says_so_in_one_line(script, tmp_path):
     result = run([sys.executable, str(ROOT / "benchmarks" / script), "/nonexistent/clip.mp4", "--out", str(tmp_path)])
     assert_one_line_error(result, script)
     assert "no such file" in result.stderr.decode()
+
+
+@pytest.mark.parametrize("script, args", [("bench_expression.py", ["--params", "nosuch"]),
+                                          ("bench_picture_layer.py", ["--rates", "fast"])])
+def test_a_benchmark_given_a_wrong_argument_says_so_in_one_line(script, args, tmp_path):
+    """The benchmarks parse their arguments as the CLIs do (common.cli.ArgumentParser): a wrong one is one
+    line naming the script, not argparse's usage block."""
+    result = run([sys.executable, str(ROOT / "benchmarks" / script), str(CLIP), *args, "--out", str(tmp_path)])
+    assert_one_line_error(result, script)
+    assert result.returncode == 2 and "invalid" in result.stderr.decode()
