@@ -83,7 +83,7 @@ class PacketDecoder:
 
     def __init__(self, known: Iterable[Header] = (), late_join: bool = False) -> None:
         self.header: Header | None = None
-        self._known = {h.ident: h for h in known}
+        self._known = {ident: h for h in known for ident in h.levels}  # a keyframe may name any level of one
         self._late_join = late_join
         self._start = 0  # the first frame output
         # the last frames packets accepted: a datagram's copies (picture and header packets between them
@@ -92,6 +92,7 @@ class PacketDecoder:
         self.stats = Stats()
         self.ended = False
         self._group: GroupState | None = None  # None: waiting for a keyframe
+        self._level: Header | None = None  # the header at the level the last keyframe named (Header.levels)
         #: While waiting for a keyframe, damage is not reported: it was already (or a late joiner waits for its first).
         self._quiet = late_join
         self._next = 0  # coded index the next delta packet must start at
@@ -241,8 +242,9 @@ class PacketDecoder:
         got = read_varint(buf, pos + 1 + ID_BYTES, MAX_FRAME)
         if got is None:
             raise Incomplete
-        header = self.header if self.header is not None else self._known.get(ident)
-        if header is None or ident != header.ident:
+        stream = self.header if self.header is not None else self._known.get(ident)
+        header = None if stream is None else stream.levels.get(ident)
+        if stream is None or header is None:
             return None  # another stream's, or one whose header has not arrived
         coded, start = got
         dec = Decoder(bytes(buf[start:start + MAX_BODY]), SYNC)
@@ -253,7 +255,7 @@ class PacketDecoder:
             return None
         started = []
         if self.header is None:
-            self.header, started = header, [header]
+            self.header, started = stream, [stream]
         if coded < self._next or self.ended:
             self.stats.duplicates += 1
             return [], data
@@ -266,7 +268,7 @@ class PacketDecoder:
                                f"{self.unpaid(size)} bytes since the last frames allow", always=True), data
         events = self.damage("packets lost before a keyframe") if coded > self._next else []
         group.end_packet()
-        self._group, self._paid = group, self._position + size
+        self._group, self._level, self._paid = group, header, self._position + size
         return started + events + self._emit(coded, decoded), data
 
     def _delta(self, buf: bytes, pos: int) -> tuple[list, bytes] | None:
@@ -414,9 +416,10 @@ class PacketDecoder:
         return events + [End(total - self._start)]
 
     def _emit(self, coded: int, decoded: list[tuple[list[int], bool]]) -> list:
-        events = []
+        events, level = [], self._level
+        assert level is not None, "frames come after a keyframe"
         for c, (values, face) in enumerate(decoded, coded):
-            params = self._header.values(values)
+            params = level.values(values)
             frame = c * self._header.divisor
             events += self._fill(frame, (c, params))
             events.append(Frame(frame, params, face))

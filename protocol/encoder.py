@@ -71,6 +71,7 @@ class PacketEncoder:
     and so may :attr:`frames_per_packet` and :attr:`key_every` (sender/link.py): a keyframe goes at
     every ``key_every``-th of the header's key places (a decoder takes a delta anywhere after a key;
     packets still end at every key place, since the decoder's rule for where a packet ends is fixed).
+    :meth:`relevel` changes the quantiser level from the next frame on, which is then a keyframe.
     """
 
     def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"",
@@ -79,7 +80,9 @@ class PacketEncoder:
             raise BitstreamError(f"frames per packet must be 1-{MAX_COUNT}")
         if len(model) != header.model_size:
             raise BitstreamError(f"header announces {header.model_size} model bytes, got {len(model)}")
-        self._h, self.frames_per_packet, self._model = header, frames_per_packet, model
+        self._stream_header = self._h = header
+        self.frames_per_packet, self._model = frames_per_packet, model
+        self._relevel: Header | None = None  # the level the next frame goes at, where it changes
         self.dead_zone = dead_zone
         self.key_every = 1
         self._new_bit = models_for(header)
@@ -105,7 +108,19 @@ class PacketEncoder:
     def header(self, model: bool = True) -> list[bytes]:
         """The header packet, then (``model``) the face model in chunks."""
         chunks = [self.model_chunk(i, MODEL_CHUNK) for i in range(0, len(self._model), MODEL_CHUNK)] if model else []
-        return [build(HEADER, encode_header(self._h))] + chunks
+        return [build(HEADER, encode_header(self._stream_header))] + chunks
+
+    @property
+    def level(self) -> int:
+        """The quality level frames are coded at (the header's, unless :meth:`relevel` changed it)."""
+        return (self._relevel or self._h).quality
+
+    def relevel(self, quality: int) -> None:
+        """Codes the frames from the next one on at quality level ``quality`` (the stream header at that
+        level, :attr:`Header.levels`): the next frame is a keyframe that names it, and the packet pending
+        ends before it. ValueError if the header's steps are not a level's."""
+        header = self._stream_header.at_level(quality)
+        self._relevel = None if header is self._h else header
 
     def model_chunk(self, offset: int, size: int) -> bytes:
         """The packet of the face model's bytes from ``offset``, at most ``size`` of them (1-MODEL_CHUNK);
@@ -133,13 +148,19 @@ class PacketEncoder:
         if index % self._h.divisor:
             return []
         coded = index // self._h.divisor
+        place, off = divmod(coded, self._h.key_interval)
+        key = off == 0 and place % self.key_every == 0 or self._relevel is not None
+        ended = []  # the packet pending, where a new level's keyframe comes before its place
+        if self._relevel is not None:
+            ended = [] if self._coder is None else [self._flush(self._coder, stop_flag=True)]
+            self._h, self._new_bit, self._held = self._relevel, models_for(self._relevel), None
+            self._relevel = None
         values = hold_or_round(self._h.coordinates(params), np.ones(len(params)), self._held, self._dead_zone)
         if max(map(abs, values)) >= _MAX_INDEX:
             raise BitstreamError("parameter out of range for the stream's steps")
         self._held, self.reconstruction = values, self._h.values(values)
         face = bool(face_seen)
-        place, off = divmod(coded, self._h.key_interval)
-        if off == 0 and place % self.key_every == 0:
+        if key:
             self._group = group = GroupState(len(values), self._h.skip_static, self._new_bit)
             coder = self._start(KEY, coded)
             group.encode_key(coder, values, face)
@@ -155,8 +176,8 @@ class PacketEncoder:
         self._count += 1
         implied = packet_ends(self._count, coded + 1, self._h.key_interval)
         if implied or group.active >= self.frames_per_packet:
-            return [self._flush(coder, stop_flag=not implied)]
-        return []
+            return ended + [self._flush(coder, stop_flag=not implied)]
+        return ended
 
     def end(self) -> list[bytes]:
         """The last pending packet and the end mark."""

@@ -6,7 +6,7 @@ allocated: a hostile header is refused, not obeyed.
 
 import hashlib
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -21,7 +21,7 @@ from facedeform.protocol.quantise import QUALITIES, dequantise, steps_for
 
 MAGIC = b"FD"
 #: The one version written and read; a decoder refuses any other (docs/bitstream.md, "Evolution").
-VERSION = 11
+VERSION = 12
 MAX_NAMES = 64
 MAX_NAME = 32
 MAX_MODEL = 16 << 20  # bytes of pre-shared face model carried in-band
@@ -126,6 +126,24 @@ class Header:
         sha256 of its encoding. A receiver that holds the header (from an earlier call or a file)
         starts at a keyframe without waiting for the header to be sent again."""
         return hashlib.sha256(encode_header(self)).digest()[:ID_BYTES]
+
+    @cached_property
+    def levels(self) -> dict[bytes, "Header"]:
+        """By id, this header at each quality level (itself among them) where its steps are its level's,
+        else itself alone. A keyframe may name any of them, and the frames from it on take that level's
+        steps: a sender whose call has grown livelier than the level it chose from its first second
+        goes coarser mid-call (protocol/rate.py), at the cost of a keyframe, not a header."""
+        if not _level_steps(self):
+            return {self.ident: self}
+        return {h.ident: h for h in (self if q == self.quality else replace(self, quality=q, steps=steps_for(
+            self.names, q)) for q in QUALITIES)}
+
+    def at_level(self, quality: int) -> "Header":
+        """This header at quality level ``quality`` (one of :attr:`levels`); ValueError if it has none."""
+        for header in self.levels.values():
+            if header.quality == quality:
+                return header
+        raise ValueError(f"this header has no quality level {quality} (its steps are its own)")
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Header) and encode_header(self) == encode_header(other)

@@ -7,10 +7,13 @@ dev clips), so a table of typical rates misses. The sender holds its first
 second anyway to find the rest face; coding that second at every level takes a
 millisecond, and the finest level that fits is the choice.
 
-The level goes in the header, once; a speaker livelier after the first second costs more
+The level goes in the header; a speaker livelier after the first second costs more
 (tpsmm_driving: 1.57 kbit/s over the clip at the level that coded its first second within 1.5).
 The dead zone is the encoder's alone (the receiver neither knows nor needs it), so
-:class:`RateKeeper` widens it while the last two seconds cost more than the rate.
+:class:`RateKeeper` widens it while the last two seconds cost more than the rate; where the keeper
+is given the level, it also moves it, a keyframe naming the header at another level
+(``Header.levels``): coarser once the last second's pace would fill two seconds past the rate,
+finer again once two seconds have cost well under it.
 """
 
 from collections import deque
@@ -63,6 +66,14 @@ WIDEST = 3.0
 WINDOW = 2.0  # seconds over which the rate is kept
 MOVE = 0.1  # steps the zone moves a frame: from its narrowest to WIDEST in a second at 25 frames/s
 SLACK = 0.9  # the zone narrows again only once the window costs less than this share of the rate
+#: The level goes one finer only once a whole window at the narrowest zone has cost less than this share of
+#: the rate: a level costs about 1.4 times the one below it (the bundled clip: 0.71, 1.08 and 1.49 kbit/s at
+#: levels 2, 3 and 4), so the finer one then keeps within SLACK of it, and a level is not left and taken
+#: back every few seconds.
+FINER = 0.6
+#: The level goes one coarser once the last second's pace, kept for a whole window, would cost more than
+#: this share of the rate: what the widest dead zone takes back is left to it.
+COARSER = 1.0
 
 
 class RateKeeper:
@@ -72,18 +83,42 @@ class RateKeeper:
     call's first frames are held to a whole window's budget too, not to their own few frames' (which
     the first keyframe alone overspent, widening the dead zone of a call far below its rate)."""
 
-    def __init__(self, bits_per_second: float, fps: float, narrowest: float) -> None:
+    def __init__(self, bits_per_second: float, fps: float, narrowest: float, level: int | None = None,
+                 finest: int = max(QUALITIES)) -> None:
         window = max(1, round(WINDOW * fps))
         self._allowed = window * bits_per_second / fps  # bits a window
         self._recent: deque[int] = deque(maxlen=window)
         self._narrowest = self.dead_zone = narrowest
+        #: the quantiser level for the next frame, where the keeper moves it (None: the header's, fixed)
+        self.level = level
+        self._finest = finest
+        self._second = max(1, round(fps))  # frames the pace is taken over: from a keyframe to the next
+        self._since = 0  # frames at this level
 
     def step(self, bits: int) -> float:
-        """The dead zone for the next frame, after one that cost ``bits`` (0 while its packet waits)."""
+        """The dead zone for the next frame, after one that cost ``bits`` (0 while its packet waits); a
+        new :attr:`level` where the keeper moves it."""
         self._recent.append(bits)
         spent, allowed = sum(self._recent), self._allowed
         if spent > allowed:
             self.dead_zone = min(max(WIDEST, self._narrowest), self.dead_zone + MOVE)
         elif spent < SLACK * allowed:
             self.dead_zone = max(self._narrowest, self.dead_zone - MOVE)
+        if self.level is not None:
+            self._since += 1
+            self._move_level(spent)
         return self.dead_zone
+
+    def _move_level(self, spent: int) -> None:
+        """Coarser once the last second at this level, its pace kept for a whole window, costs more than the
+        rate; finer once a whole window at this level and the narrowest zone has cost under FINER of it."""
+        assert self.level is not None
+        window, second = self._recent.maxlen or 1, self._second
+        if self._since >= second and self.level > min(QUALITIES):
+            pace = sum(list(self._recent)[-second:]) / second
+            if pace * window > COARSER * self._allowed:
+                self.level, self._since = self.level - 1, 0
+                return
+        if (self._since >= window and self.level < self._finest and self.dead_zone == self._narrowest
+                and spent < FINER * self._allowed):
+            self.level, self._since = self.level + 1, 0

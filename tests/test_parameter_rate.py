@@ -1,14 +1,17 @@
 """The parameters kept to a rate: a level from the call's first second, then a dead zone that widens
 where the call costs more, and fd-send's default rate with a speaker's own motion basis."""
 
+import numpy as np
 import pytest
 
 import facedeform
-from facedeform.protocol.rate import MOVE, WIDEST, WINDOW, RateKeeper
+from facedeform.protocol.encoder import PacketEncoder
+from facedeform.protocol.rate import FINER, MOVE, WIDEST, WINDOW, RateKeeper
 from facedeform.protocol.stream import Frame, StreamDecoder
 from facedeform.sender import session
-from facedeform.sender.config import SPEAKER_RATE
-from tests.support import CLIP
+from facedeform.sender.config import SPEAKER_RATE, SendConfig
+from facedeform.sender.session import SendSession
+from tests.support import CLIP, clip_frames, sent_per_frame
 
 FPS = 25.0
 
@@ -41,6 +44,56 @@ def test_a_first_keyframe_alone_does_not_widen_the_dead_zone():
 def test_a_call_dead_zone_wider_than_widest_is_kept():
     keeper = RateKeeper(1000.0, FPS, narrowest=3.5)
     assert keeper.step(10_000) == 3.5 and keeper.step(0) == 3.5
+
+
+def test_the_level_goes_coarser_a_second_at_a_time_while_the_pace_is_over_the_rate_and_finer_when_well_under():
+    """A keeper given the level: at twice the rate one level coarser after the first second, and another
+    after the next (the pace taken at each level anew), never below the coarsest; then, a whole window
+    under FINER of the rate at the narrowest zone, one finer at a time, never past ``finest``."""
+    keeper = RateKeeper(1000.0, FPS, narrowest=1.0, level=4, finest=4)
+    levels = []
+    for _ in range(200):
+        keeper.step(80)  # 2000 bit/s
+        levels.append(keeper.level)
+    second = round(FPS)
+    assert levels[:second - 1] == [4] * (second - 1) and levels[second - 1] == 3
+    assert levels[2 * second - 1] == 2 and min(levels) == levels[-1] == 1
+    for _ in range(1000):
+        keeper.step(round(0.5 * FINER * 1000 / FPS))
+        levels.append(keeper.level)
+    assert levels[-1] == 4 and all(b - a in (0, 1) for a, b in zip(levels[200:], levels[201:]))
+
+
+def test_a_keeper_without_the_level_leaves_it():
+    keeper = RateKeeper(1000.0, FPS, narrowest=1.0)
+    assert all(keeper.step(400) and keeper.level is None for _ in range(100))
+
+
+def test_a_call_livelier_than_its_first_second_goes_a_level_coarser_and_keeps_the_rate(monkeypatch):
+    """The bundled clip's speaker is quiet in his first second and talks after it: at 1.5 kbit/s without a
+    face, coded all through at the level that fitted his first second (4), a 2-second window took 1.24
+    times the rate. A keyframe naming the header a level coarser now goes once the pace passes the rate:
+    every window within a tenth of it, and every frame decoded as the sender reconstructed it."""
+    sent = []
+    frame = PacketEncoder.frame
+
+    def framed(encoder, *args):  # the call's own frames, not the sample's tries at each level
+        packets = frame(encoder, *args)
+        if encoder is call.encoder:
+            sent.append((encoder.reconstruction, encoder.level))
+        return packets
+
+    monkeypatch.setattr(PacketEncoder, "frame", framed)
+    call = SendSession(str(CLIP), SendConfig(bitrate=1500, embed_face=False), warn=lambda line: None)
+    chunks, bits, _ = sent_per_frame(call)
+    assert call.header.quality == 4 and call.stats()["level_changes"] >= 1 and min(level for _, level in sent) < 4
+    assert np.convolve(bits, np.ones(round(WINDOW * FPS)), mode="valid").max() <= 1.1 * 1500 * WINDOW
+    decoder = StreamDecoder()
+    events = decoder.feed(b"".join(chunks)) + decoder.close()
+    decoded = [e for e in events if isinstance(e, Frame)]
+    assert len(decoded) == len(sent) == clip_frames() and not decoder.stats.damaged
+    for f, (r, _) in zip(decoded, sent):
+        np.testing.assert_array_equal(f.params, r)
 
 
 def send(**options) -> tuple[bytes, float, int]:

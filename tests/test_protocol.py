@@ -122,6 +122,57 @@ def test_decoder_outputs_the_encoders_reconstruction_within_the_dead_zone(
         assert np.all(error <= max(dead_zone, 0.5) * (1 + 1e-9))
 
 
+@settings(max_examples=30, deadline=None)
+@given(st.sampled_from(LAYOUTS), st.integers(1, 8), st.integers(1, 30),
+       st.dictionaries(st.integers(0, 59), st.sampled_from(QUALITIES), max_size=4), st.integers(0, 2**32 - 1),
+       st.booleans())
+def test_a_new_level_mid_stream_goes_from_a_keyframe_and_decodes_to_the_encoders_reconstruction(
+        names, fpp, key, changes, seed, basis):
+    """PacketEncoder.relevel: the frame after it is a keyframe naming the header at the new level
+    (Header.levels), wherever it falls, the packet before it ended there; the decoder outputs exactly
+    what the encoder reconstructed, within the dead zone of each frame's own level's steps."""
+    h = header(names, 3, key_interval=key, basis=random_basis(len(names), seed) if basis else None)
+    params = walk(60, len(names), seed) * 8
+    enc, sent = PacketEncoder(h, fpp, dead_zone=1.0), []
+    packets = enc.header()
+    for i, x in enumerate(params):
+        if i in changes:
+            enc.relevel(changes[i])
+        packets += enc.frame(x, True)
+        sent.append((enc.reconstruction, enc.level))
+    events, dec = decode(frame_bytes(packets + enc.end()))
+    got = frames(events)
+    assert events[0] == h and not dec.stats.damaged and [f.seq for f in got] == list(range(60))
+    for f, x, (r, level) in zip(got, params, sent):
+        np.testing.assert_array_equal(f.params, r)
+        steps = h.at_level(level)
+        assert np.all(np.abs(steps.coordinates(r) - steps.coordinates(x)) <= 1 + 1e-9)
+    keys = sum(p[:1] == bytes([SYNC]) and p[2:6] in h.levels for p in packets)
+    assert keys >= len({level for _, level in sent}) and len(h.levels) == len(QUALITIES)
+
+
+def test_a_keyframe_at_another_level_of_a_held_header_starts_a_late_joiner():
+    """A receiver that holds the stream's header (an earlier call) starts at a keyframe naming it at any
+    of its levels; a keyframe naming none of them (another stream's) is not taken."""
+    h = header(PAPER_PARAMS, 3)
+    enc = PacketEncoder(h)
+    for x in walk(7, len(PAPER_PARAMS)):
+        enc.frame(x, True)
+    enc.relevel(1)
+    key = enc.frame(np.zeros(len(PAPER_PARAMS)), True)
+    late = DatagramDecoder(known=[h])
+    started = [e for p in key for e in late.receive(p)]
+    assert started[0] == h and [f.seq for f in frames(started)] == [7]
+    stranger = DatagramDecoder(known=[header(PAPER_PARAMS, 3, key_interval=24)])
+    assert not [e for p in key for e in stranger.receive(p)]
+
+
+def test_a_header_with_steps_of_its_own_has_no_other_level():
+    assert list(CUSTOM.levels.values()) == [CUSTOM]
+    with pytest.raises(ValueError, match="no quality level"):
+        CUSTOM.at_level(3)
+
+
 @given(st.lists(st.floats(-1, 1), min_size=1, max_size=40), st.floats(0.5, 4))
 def test_dead_zone_holds_what_the_decoder_has_until_the_value_leaves_it(track, dead_zone):
     steps = np.array([0.01])
