@@ -82,7 +82,9 @@ class PacketEncoder:
             raise BitstreamError(f"header announces {header.model_size} model bytes, got {len(model)}")
         self._stream_header = self._h = header
         self.frames_per_packet, self._model = frames_per_packet, model
-        self._relevel: Header | None = None  # the level the next frame goes at, where it changes
+        self._relevel: Header | None = None  # the level the next keyframe goes at, where it changes
+        self._relevel_at_place = False  # that keyframe waits for a key place
+        self.level_changes = 0
         self.dead_zone = dead_zone
         self.key_every = 1
         self._new_bit = models_for(header)
@@ -112,15 +114,18 @@ class PacketEncoder:
 
     @property
     def level(self) -> int:
-        """The quality level frames are coded at (the header's, unless :meth:`relevel` changed it)."""
-        return (self._relevel or self._h).quality
+        """The quality level the last frame was coded at (the header's, unless :meth:`relevel` changed it)."""
+        return self._h.quality
 
-    def relevel(self, quality: int) -> None:
+    def relevel(self, quality: int, at_place: bool = False) -> None:
         """Codes the frames from the next one on at quality level ``quality`` (the stream header at that
         level, :attr:`Header.levels`): the next frame is a keyframe that names it, and the packet pending
-        ends before it. ValueError if the header's steps are not a level's."""
+        ends before it; ``at_place``: from the next key place on, a keyframe there whatever
+        :attr:`key_every` says (over datagrams, whose header repeats keep to the places). Asked again
+        before it goes, it is the same change. ValueError if the header's steps are not a level's."""
         header = self._stream_header.at_level(quality)
         self._relevel = None if header is self._h else header
+        self._relevel_at_place = at_place
 
     def model_chunk(self, offset: int, size: int) -> bytes:
         """The packet of the face model's bytes from ``offset``, at most ``size`` of them (1-MODEL_CHUNK);
@@ -149,12 +154,13 @@ class PacketEncoder:
             return []
         coded = index // self._h.divisor
         place, off = divmod(coded, self._h.key_interval)
-        key = off == 0 and place % self.key_every == 0 or self._relevel is not None
+        key = off == 0 and place % self.key_every == 0
         ended = []  # the packet pending, where a new level's keyframe comes before its place
-        if self._relevel is not None:
+        if self._relevel is not None and (off == 0 or not self._relevel_at_place):
+            key = True
             ended = [] if self._coder is None else [self._flush(self._coder, stop_flag=True)]
             self._h, self._new_bit, self._held = self._relevel, models_for(self._relevel), None
-            self._relevel = None
+            self._relevel, self.level_changes = None, self.level_changes + 1
         values = hold_or_round(self._h.coordinates(params), np.ones(len(params)), self._held, self._dead_zone)
         if max(map(abs, values)) >= _MAX_INDEX:
             raise BitstreamError("parameter out of range for the stream's steps")

@@ -94,8 +94,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                            "a moving camera uncovers), the whole kept within 10 %% of the rate over any 2 s; more "
                            "kbit/s, a better picture (none below about 3 kbit/s at 256x256). Otherwise the "
                            "finest quantiser level that codes the call's first second within it, with the dead "
-                           "zone widened as the call goes where livelier talking costs more, and on a byte stream "
-                           "a coarser level (a keyframe) where that is not enough. Over udp:// it counts "
+                           "zone widened as the call goes where livelier talking costs more, and a coarser "
+                           "level (from a keyframe) where that is not enough. Over udp:// it counts "
                            "the copies (--redundancy) and the header's repeats for late joiners (all but those "
                            "of the first 4 s, which are one-off like the header); where the copies leave the "
                            "picture layer too little, it runs while fd-recv reports a link that loses nothing")

@@ -65,8 +65,8 @@ class SendConfig:
     (``common.keys``) to seal every packet with, tags of ``tag_bits``; dead_zone: the encoder's
     dead zone in quantiser steps (0.5: plain rounding); bitrate: bit/s to aim at instead of a
     ``level`` (the finest level that codes the call's first second within it, chosen before the
-    header goes out, and a dead zone widened as the call goes where it costs more; on a byte stream
-    whose parameters keep the whole rate, the level moved mid-call too: ``protocol.rate``);
+    header goes out, and a dead zone widened as the call goes where it costs more; where the
+    parameters keep the whole rate, the level moved mid-call too: ``protocol.rate``);
     basis: code the principal components of the first second's motion
     (``protocol.basis``) instead of each parameter; divisor: send one frame in this many, the
     receiver interpolates the others; datagrams: the packets go one per UDP datagram, made ready

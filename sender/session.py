@@ -212,7 +212,6 @@ class SendSession:
         self.feedback: Callable[[], Report | None] | None = None
         self._link = LinkWatch()
         self.lean_frames = 0  # frames sent lean: without copies, on a link that lost nothing
-        self.level_changes = 0  # times the parameters' level moved mid-call (protocol/rate.py)
         #: bits of the last frames sent, WINDOW seconds less a frame: what a paced face and the picture layer keep
         #: the stream within (the layer from the window as the frames before it spent it)
         self._recent: deque[int] = deque(maxlen=max(1, round(WINDOW * self.source.fps)) - 1)
@@ -270,10 +269,9 @@ class SendSession:
                                               self.config.packet_frames, self.config.dead_zone,
                                               0 if self.sealer is None else self.sealer.overhead,
                                               self.config.redundancy if self.config.datagrams else None, self._finest)
-                # a byte stream whose parameters keep the whole --bitrate: the level moves where the call grows
-                # livelier than its first second (protocol/rate.py; over datagrams keys keep their places)
-                moves = self._layer_rate is None and not self.config.paced_face and not self.config.datagrams \
-                    and self.config.bitrate is not None
+                # where the parameters keep the whole --bitrate, the level moves as the call grows livelier
+                # than its first second, or quieter (protocol/rate.py)
+                moves = self._layer_rate is None and not self.config.paced_face and self.config.bitrate is not None
                 self._keeper = RateKeeper(aim, fps, self.config.dead_zone, quality if moves else None, self._finest)
             self._configure(quality)
             if first and aim is not None:
@@ -315,9 +313,8 @@ class SendSession:
             if self._keeper is not None:  # on the frames' bits: the repeats' share was taken off its aim
                 self.encoder.dead_zone = self._keeper.step(8 * stream_size(packets, self.sealed) - repeats)
                 level = self._keeper.level
-                if level is not None and level != self.encoder.level:
-                    self.encoder.relevel(level)
-                    self.level_changes += 1
+                if level is not None and level != self.encoder.level:  # over datagrams at a key place
+                    self.encoder.relevel(level, at_place=self.datagrams is not None)
             drawn_from = self.encoder.reconstruction  # what the receiver decodes of this frame
             if self.picture is not None and result.frame is not None and drawn_from is not None:
                 packets = self._seal(self.picture.step(seq, result.frame, drawn_from, self.encoder, packets,
@@ -476,7 +473,7 @@ class SendSession:
                 "basis": self.header.basis is not None, "send_every": self.header.divisor,
                 "rest_frame": None if rest is None else rest.index,
                 "tag_bits": None if self.sealer is None else 8 * self.sealer.tag_bytes,
-                "lean_frames": self.lean_frames, "level_changes": self.level_changes,
+                "lean_frames": self.lean_frames, "level_changes": self.encoder.level_changes,
                 "picture_packets": None if layer is None else layer[0],
                 "picture_bits_per_frame": None if layer is None else round(layer[1] / max(n, 1), 1),
                 "frames_per_second": round(n / max(time.perf_counter() - self._started, 1e-9), 1)}

@@ -14,7 +14,7 @@ from facedeform.common.limits import MAX_SIDE
 from facedeform.common.parameters import LAYOUTS as NAMED
 from facedeform.common.parameters import PAPER_PARAMS
 from facedeform.protocol.basis import SCALE
-from facedeform.protocol.framing import END, HEADER, SYNC, Delta, build, varint
+from facedeform.protocol.framing import END, HEADER, SYNC, Delta, build, read_varint, varint
 from facedeform.protocol.header import MAX_MODEL, VERSION, encode_header, parse_header
 from facedeform.protocol.layouts import shipped, shipped_basis
 from facedeform.protocol.quantise import QUALITIES, dequantise, hold_or_round, quantise
@@ -125,19 +125,19 @@ def test_decoder_outputs_the_encoders_reconstruction_within_the_dead_zone(
 @settings(max_examples=30, deadline=None)
 @given(st.sampled_from(LAYOUTS), st.integers(1, 8), st.integers(1, 30),
        st.dictionaries(st.integers(0, 59), st.sampled_from(QUALITIES), max_size=4), st.integers(0, 2**32 - 1),
-       st.booleans())
+       st.booleans(), st.booleans())
 def test_a_new_level_mid_stream_goes_from_a_keyframe_and_decodes_to_the_encoders_reconstruction(
-        names, fpp, key, changes, seed, basis):
-    """PacketEncoder.relevel: the frame after it is a keyframe naming the header at the new level
-    (Header.levels), wherever it falls, the packet before it ended there; the decoder outputs exactly
-    what the encoder reconstructed, within the dead zone of each frame's own level's steps."""
+        names, fpp, key, changes, seed, basis, at_place):
+    """PacketEncoder.relevel: the frame after it (or, ``at_place``, the next key place) is a keyframe
+    naming the header at the new level (Header.levels), the packet before it ended there; the decoder
+    outputs exactly what the encoder reconstructed, within the dead zone of each frame's own level's steps."""
     h = header(names, 3, key_interval=key, basis=random_basis(len(names), seed) if basis else None)
     params = walk(60, len(names), seed) * 8
     enc, sent = PacketEncoder(h, fpp, dead_zone=1.0), []
     packets = enc.header()
     for i, x in enumerate(params):
         if i in changes:
-            enc.relevel(changes[i])
+            enc.relevel(changes[i], at_place)
         packets += enc.frame(x, True)
         sent.append((enc.reconstruction, enc.level))
     events, dec = decode(frame_bytes(packets + enc.end()))
@@ -147,8 +147,9 @@ def test_a_new_level_mid_stream_goes_from_a_keyframe_and_decodes_to_the_encoders
         np.testing.assert_array_equal(f.params, r)
         steps = h.at_level(level)
         assert np.all(np.abs(steps.coordinates(r) - steps.coordinates(x)) <= 1 + 1e-9)
-    keys = sum(p[:1] == bytes([SYNC]) and p[2:6] in h.levels for p in packets)
-    assert keys >= len({level for _, level in sent}) and len(h.levels) == len(QUALITIES)
+    keys = [read_varint(p, 6, 1 << 20)[0] for p in packets if p[:1] == bytes([SYNC]) and p[2:6] in h.levels]
+    assert len(keys) >= len({level for _, level in sent}) and len(h.levels) == len(QUALITIES)
+    assert not at_place or all(k % key == 0 for k in keys)
 
 
 def test_a_keyframe_at_another_level_of_a_held_header_starts_a_late_joiner():
