@@ -336,6 +336,26 @@ def sender_pictures():
         picture_layer.PictureLayer.step = original
 
 
+def datagrams_per_frame(session, receive=lambda datagram: None) -> np.ndarray:
+    """A SendSession over datagrams run to its end, each datagram (the header's first) handed to ``receive``:
+    the bits of each frame's datagrams after the header, the end's counted with the last frame."""
+    bits: list[int] = []
+    for i, datagrams in enumerate(session.packets()):
+        for datagram in datagrams:
+            receive(datagram)
+        if i:  # after the header
+            bits += [0] * (session.frame_count - len(bits))
+            bits[-1] += 8 * sum(map(len, datagrams))
+    return np.array(bits)
+
+
+def largest_window(bits, fps: float = 25.0) -> float:
+    """bit/s of the costliest 2 seconds of ``bits`` (each frame's): what a rate is kept within, over any 2 s."""
+    window = round(2.0 * fps)
+    assert len(bits) >= window, "a call shorter than its window"
+    return float(np.convolve(bits, np.ones(window), mode="valid").max()) / 2.0
+
+
 def sent_per_frame(session) -> tuple[list[bytes], np.ndarray, list[list[bytes]]]:
     """A SendSession run to its end: (the stream's chunks, the header's first; the bits of each frame's
     packets after the header, the end mark's counted with the last frame; the packets of each chunk)."""

@@ -13,7 +13,18 @@ from facedeform.sender.config import SendConfig
 from facedeform.sender.link import AFTER_LOSS, CLEAN, LEAN_KEYS, QUIET, LinkWatch
 from facedeform.sender.session import SendSession
 from facedeform.sender.sources import LoopedSource
-from tests.support import CLIP, DEADLINE, ROOT, SEND, finish, smooth_tracks, start_listener, stream_datagrams
+from tests.support import (
+    CLIP,
+    DEADLINE,
+    ROOT,
+    SEND,
+    datagrams_per_frame,
+    finish,
+    largest_window,
+    smooth_tracks,
+    start_listener,
+    stream_datagrams,
+)
 
 
 def test_a_lost_datagram_made_good_by_the_copies_counts_as_repaired_and_a_clean_link_as_nothing():
@@ -151,14 +162,10 @@ def test_copies_that_the_rate_cannot_carry_do_not_go():
     every 2 seconds keep within a tenth of the rate, and every frame still arrives."""
     said: list[str] = []
     session = SendSession(str(CLIP), SendConfig(bitrate=3000, datagrams=True), warn=said.append)
-    decoder, frames, bits = DatagramDecoder(), [], []
-    for i, datagrams in enumerate(session.packets()):
-        frames += [e for d in datagrams for e in decoder.receive(d) if isinstance(e, Frame)]
-        if i:  # after the header
-            bits += [0] * (session.frame_count - len(bits))
-            bits[-1] += 8 * sum(map(len, datagrams))
+    decoder, frames = DatagramDecoder(), []
+    bits = datagrams_per_frame(session, lambda d: frames.extend(e for e in decoder.receive(d) if isinstance(e, Frame)))
     assert session.datagrams.copies < 3 and sum("copies" in line for line in said) == 1
-    assert max(sum(bits[i:i + 50]) for i in range(len(bits) - 49)) <= 1.1 * 3000 * 2.0
+    assert largest_window(bits) <= 1.1 * 3000
     assert [f.seq for f in frames] == list(range(75))
 
 

@@ -14,7 +14,7 @@ from facedeform.sender import picture_layer
 from facedeform.sender.config import SendConfig
 from facedeform.sender.picture_layer import layer_video_size
 from facedeform.sender.session import SendSession
-from tests.support import CLIP, sender_pictures, sent_per_frame
+from tests.support import CLIP, datagrams_per_frame, largest_window, sender_pictures, sent_per_frame
 
 RATE = 10.0  # kbit/s
 
@@ -102,10 +102,7 @@ def test_without_its_picture_layer_a_stream_decodes_to_the_model_only_picture(fa
 
 def test_the_rate_is_kept_within_a_tenth_over_any_two_seconds(call):
     _, _, bits, _ = call
-    window = 50  # frames: 2 s at 25 fps
-    assert len(bits) > window
-    sums = np.convolve(bits, np.ones(window), mode="valid")
-    assert sums.max() <= 1.1 * RATE * 1000 * 2.0
+    assert largest_window(bits) <= 1.1 * RATE * 1000
     assert bits.sum() * 25 / len(bits) > 0.7 * RATE * 1000  # and the rate is used
 
 
@@ -116,7 +113,7 @@ def test_at_4_kbit_s_a_small_video_keeps_the_rate_too(face):
     session = SendSession(str(CLIP), SendConfig(bitrate=4_000, embed_face=False), face=face)
     _, bits, _ = sent_per_frame(session)
     assert session.stats()["picture_packets"] > 5
-    assert np.convolve(bits, np.ones(50), mode="valid").max() <= 1.1 * 4_000 * 2.0
+    assert largest_window(bits) <= 1.1 * 4_000
 
 
 def test_over_udp_to_a_receiver_that_reports_the_rate_is_kept_too(face):
@@ -128,15 +125,9 @@ def test_over_udp_to_a_receiver_that_reports_the_rate_is_kept_too(face):
     rate = 8.0
     session = SendSession(str(CLIP), SendConfig(bitrate=rate * 1000, embed_face=False, datagrams=True), face=face,
                           warn=lambda line: None)
-    link, bits = ReportingReceiver(session, 25), []
-    for i, datagrams in enumerate(session.packets()):
-        for datagram in datagrams:
-            link.receive(datagram)
-        if i:  # after the header
-            bits += [0] * (session.frame_count - len(bits))
-            bits[-1] += 8 * sum(map(len, datagrams))
+    bits = datagrams_per_frame(session, ReportingReceiver(session, 25).receive)
     assert session.lean_frames > 0 and session.stats()["picture_packets"] > 10
-    assert np.convolve(bits, np.ones(50), mode="valid").max() <= 1.1 * rate * 1000 * 2.0
+    assert largest_window(bits) <= 1.1 * rate * 1000
 
 
 def test_over_udp_to_a_receiver_that_does_not_report_an_overdue_key_is_blurred_to_keep_the_rate(face, monkeypatch):
@@ -153,14 +144,10 @@ def test_over_udp_to_a_receiver_that_does_not_report_an_overdue_key_is_blurred_t
     with sender_pictures() as pictures:
         session = SendSession(str(CLIP), SendConfig(bitrate=rate * 1000, embed_face=False, datagrams=True),
                               face=face, warn=lambda line: None)
-        bits, datagrams = [], []
-        for i, packets in enumerate(session.packets()):
-            datagrams += packets
-            if i:  # after the header
-                bits += [0] * (session.frame_count - len(bits))
-                bits[-1] += 8 * sum(map(len, packets))
+        datagrams: list[bytes] = []
+        bits = datagrams_per_frame(session, datagrams.append)
     assert fitted[0] is None and len(fitted) >= 2  # the first key, and a later one refitted
-    assert np.convolve(bits, np.ones(50), mode="valid").max() <= 1.1 * rate * 1000 * 2.0
+    assert largest_window(bits) <= 1.1 * rate * 1000
     decoder = DatagramDecoder()
     events = [e for d in datagrams for e in decoder.receive(d)]
     view = PictureView(events[0], face.model, (360, 288))
