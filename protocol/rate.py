@@ -13,7 +13,8 @@ The dead zone is the encoder's alone (the receiver neither knows nor needs it), 
 :class:`RateKeeper` widens it while the last two seconds cost more than the rate; where the keeper
 is given the level, it also moves it, a keyframe naming the header at another level
 (``Header.levels``): coarser once the last second's pace would fill two seconds past the rate,
-finer again once two seconds have cost well under it.
+finer again once two seconds have cost well under it; at the coarsest level it says it is short
+(over datagrams the sender then sends a copy of each packet fewer).
 """
 
 from collections import deque
@@ -94,6 +95,9 @@ class RateKeeper:
         self._finest = finest
         self._second = max(1, round(fps))  # frames the pace is taken over: from a keyframe to the next
         self._since = 0  # frames at this level
+        #: the last step found the pace over the rate at the coarsest level (once a second while it is):
+        #: what else the caller can shed (over datagrams, a copy of each packet) is its to shed
+        self.short = False
 
     def step(self, bits: int) -> float:
         """The dead zone for the next frame, after one that cost ``bits`` (0 while its packet waits); a
@@ -104,6 +108,7 @@ class RateKeeper:
             self.dead_zone = min(max(WIDEST, self._narrowest), self.dead_zone + MOVE)
         elif spent < SLACK * allowed:
             self.dead_zone = max(self._narrowest, self.dead_zone - MOVE)
+        self.short = False
         if self.level is not None:
             self._since += 1
             self._move_level(spent)
@@ -114,10 +119,11 @@ class RateKeeper:
         rate; finer once a whole window at this level and the narrowest zone has cost under FINER of it."""
         assert self.level is not None
         window, second = self._recent.maxlen or 1, self._second
-        if self._since >= second and self.level > min(QUALITIES):
+        if self._since >= second:
             pace = sum(list(self._recent)[-second:]) / second
             if pace * window > COARSER * self._allowed:
-                self.level, self._since = self.level - 1, 0
+                coarsest = self.level == min(QUALITIES)
+                self.level, self._since, self.short = self.level - (not coarsest), 0, coarsest
                 return
         if (self._since >= window and self.level < self._finest and self.dead_zone == self._narrowest
                 and spent < FINER * self._allowed):

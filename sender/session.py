@@ -141,6 +141,14 @@ def dump_row(f: FrameAnalysis) -> dict:
     return row
 
 
+def _copies_going(copies: int) -> str:
+    """What ``copies`` copies of each packet against loss mean, said to the user."""
+    if copies < 2:
+        return ("none go: a lost datagram costs frames until the next keyframe",
+                "one goes: a datagram lost alone costs no frame")[copies]
+    return f"{copies} go: up to {copies} datagrams lost in a row cost no frame"
+
+
 class SendSession:
     """Opens the source and the models; :meth:`packets` yields the packets as frames are analysed.
 
@@ -315,6 +323,8 @@ class SendSession:
                 level = self._keeper.level
                 if level is not None and level != self.encoder.level:  # over datagrams at a key place
                     self.encoder.relevel(level, at_place=self.datagrams is not None)
+                if self._keeper.short and self.datagrams is not None and self._copies > 0:
+                    self._shed_copy(seq)
             drawn_from = self.encoder.reconstruction  # what the receiver decodes of this frame
             if self.picture is not None and result.frame is not None and drawn_from is not None:
                 packets = self._seal(self.picture.step(seq, result.frame, drawn_from, self.encoder, packets,
@@ -387,6 +397,16 @@ class SendSession:
         self.lean_frames += lean
         return report
 
+    def _shed_copy(self, seq: int) -> None:
+        """One copy of each packet fewer from frame ``seq`` on, the call costing more than --bitrate at the
+        coarsest level (protocol/rate.py): the copies were chosen from its first second."""
+        self._copies -= 1
+        assert self.datagrams is not None
+        self.datagrams.copies = min(self.datagrams.copies, self._copies)
+        bitrate = self.config.bitrate or 0.0
+        self._warn(f"from frame {seq} the call costs more than the {bitrate / 1000:g} kbit/s asked at the coarsest "
+                   f"level; {_copies_going(self._copies)}")
+
     def _check_room(self, quality: int, sample: Sequence[tuple[np.ndarray, bool]]) -> None:
         """Over datagrams, where the parameters as they go (their first second ``sample`` at ``quality``,
         with their copies and keyframes and the header's repeats) leave the picture layer too little to
@@ -414,11 +434,9 @@ class SendSession:
                 copies -= 1
                 cost = cost_with(copies)
             if copies < self._copies:
-                kept = ("none go: a lost datagram costs frames until the next keyframe",
-                        "one goes: a datagram lost alone costs no frame")[copies] if copies < 2 else \
-                    f"{copies} go: up to {copies} datagrams lost in a row cost no frame"
                 self._warn(f"with {self._copies} copies of each packet against loss the parameters would take more "
-                           f"than the {bitrate / 1000:g} kbit/s asked; {kept} (about {cost / 1000:.1f} kbit/s)")
+                           f"than the {bitrate / 1000:g} kbit/s asked; {_copies_going(copies)} "
+                           f"(about {cost / 1000:.1f} kbit/s)")
                 self._copies = datagrams.copies = copies
             lean = sample_bits_per_second(header, sample, STREAM_FRAMES, self.config.dead_zone, 0, 0) + \
                 datagrams.repeat_rate(keys)

@@ -169,6 +169,21 @@ def test_copies_that_the_rate_cannot_carry_do_not_go():
     assert [f.seq for f in frames] == list(range(75))
 
 
+def test_a_copy_fewer_goes_where_the_call_grows_costlier_than_the_rate_at_the_coarsest_level():
+    """To a receiver that does not report, the bundled clip at 4 kbit/s keeps its three copies at the
+    coarsest level (its first second fits the rate); livelier after it, it would cost more, and the level
+    can go no coarser: one copy fewer goes from then on (protocol/rate.RateKeeper.short), fd-send says so
+    once, every 2 seconds keep within a tenth of the rate, and every frame still arrives."""
+    said: list[str] = []
+    session = SendSession(str(CLIP), SendConfig(bitrate=4000, datagrams=True), warn=said.append)
+    decoder, frames = DatagramDecoder(), []
+    bits = datagrams_per_frame(session, lambda d: frames.extend(e for e in decoder.receive(d) if isinstance(e, Frame)))
+    assert session.header.quality == 1 and session.datagrams.copies == 2
+    assert len(said) == 1 and "costs more than the 4 kbit/s asked at the coarsest level; 2 go" in said[0]
+    assert largest_window(bits) <= 1.1 * 4000
+    assert [f.seq for f in frames] == list(range(75))
+
+
 def test_a_session_foresees_the_frames_its_headers_repeats_go_with():
     """What the picture layer plans a window on (SendSession._repeats_ahead): from the first frame, the
     header's repeats over the next 60 frames fall on the frames and with the bits they then take."""

@@ -48,16 +48,20 @@ def test_a_call_dead_zone_wider_than_widest_is_kept():
 
 def test_the_level_goes_coarser_a_second_at_a_time_while_the_pace_is_over_the_rate_and_finer_when_well_under():
     """A keeper given the level: at twice the rate one level coarser after the first second, and another
-    after the next (the pace taken at each level anew), never below the coarsest; then, a whole window
-    under FINER of the rate at the narrowest zone, one finer at a time, never past ``finest``."""
+    after the next (the pace taken at each level anew), never below the coarsest, where it says it is
+    short once a second; then, a whole window under FINER of the rate at the narrowest zone, one finer
+    at a time, never past ``finest``."""
     keeper = RateKeeper(1000.0, FPS, narrowest=1.0, level=4, finest=4)
-    levels = []
+    levels, short = [], []
     for _ in range(200):
         keeper.step(80)  # 2000 bit/s
         levels.append(keeper.level)
+        short.append(keeper.short)
     second = round(FPS)
     assert levels[:second - 1] == [4] * (second - 1) and levels[second - 1] == 3
     assert levels[2 * second - 1] == 2 and min(levels) == levels[-1] == 1
+    # at the coarsest, once a second: the caller's to shed what else it can
+    assert [i for i, s in enumerate(short) if s] == list(range(4 * second - 1, 200, second))
     for _ in range(1000):
         keeper.step(round(0.5 * FINER * 1000 / FPS))
         levels.append(keeper.level)
