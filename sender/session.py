@@ -223,6 +223,9 @@ class SendSession:
         #: bits of the last frames sent, WINDOW seconds less a frame: what a paced face and the picture layer keep
         #: the stream within (the layer from the window as the frames before it spent it)
         self._recent: deque[int] = deque(maxlen=max(1, round(WINDOW * self.source.fps)) - 1)
+        #: bits of the window ending at the last frame sent, and of the costliest window so far: what a
+        #: user checks --bitrate against (the end mark and the last packet it holds count with the last frame)
+        self._window = self._costliest = 0
 
     @property
     def sealed(self) -> bool:
@@ -333,7 +336,10 @@ class SendSession:
                 packets = self._seal(self._pacing.step(8 * stream_size(packets, self.sealed), sum(self._recent))) \
                     + packets
             self.stream_bytes += stream_size(packets, self.sealed)
-            self._recent.append(8 * stream_size(packets, self.sealed))
+            bits = 8 * stream_size(packets, self.sealed)
+            self._window = sum(self._recent) + bits
+            self._costliest = max(self._costliest, self._window)
+            self._recent.append(bits)
             if self._pacing is not None and self._pacing.drained and self.picture is None:
                 self._start_layer()  # the receiver holds the face: the layer from the next frame
                 if not self.config.datagrams:  # (over datagrams a receiver may join that lacks it)
@@ -465,6 +471,7 @@ class SendSession:
             self.picture.close()
         packets = self._seal(self.encoder.end())
         self.stream_bytes += stream_size(packets, self.sealed)
+        self._costliest = max(self._costliest, self._window + 8 * stream_size(packets, self.sealed))
         return packets
 
     def _seal(self, packets: list[bytes]) -> list[bytes]:
@@ -479,11 +486,13 @@ class SendSession:
                 yield frame_bytes(packets, self.sealed)
 
     def stats(self) -> dict:
-        """Frames, frames without a face, bits per frame, bit rate, processing speed, rest frame."""
+        """Frames, frames without a face, bits per frame, bit rate and that of the costliest 2 seconds (the
+        window --bitrate is kept over), processing speed, rest frame."""
         n = self.frame_count
         bits = 8 * self.stream_bytes / max(n, 1)
         rest = self.analyser.rest
         layer = self._layer_totals()
+        window = ((self._recent.maxlen or 0) + 1) / self.source.fps  # seconds
         return {"frames": n, "frames_without_face": self.analyser.frames_without_face,
                 "quality": self.header.quality,
                 "bits_per_frame": round(bits, 1), "kbit_per_s": round(bits * self.source.fps / 1000, 3),
@@ -494,6 +503,7 @@ class SendSession:
                 "lean_frames": self.lean_frames, "level_changes": self.encoder.level_changes,
                 "picture_packets": None if layer is None else layer[0],
                 "picture_bits_per_frame": None if layer is None else round(layer[1] / max(n, 1), 1),
+                "costliest_2s_kbit_per_s": round(self._costliest / window / 1000, 3),
                 "frames_per_second": round(n / max(time.perf_counter() - self._started, 1e-9), 1)}
 
     def summary(self) -> str:
@@ -502,7 +512,8 @@ class SendSession:
             f" ({s['picture_bits_per_frame'] * s['fps'] / 1000:.2f} of them the picture layer's)"
         return (f"{s['frames']} frames ({s['frames_without_face']} without a face), "
                 f"{s['bits_per_frame']:.0f} bits/frame, {s['kbit_per_s']:.2f} kbit/s{layer} at {s['fps']:g} fps "
-                f"(+{s['header_bytes']} header bytes), rest face: frame {s['rest_frame']}, "
+                f"(+{s['header_bytes']} header bytes; at most {s['costliest_2s_kbit_per_s']:.2f} kbit/s over any 2 s), "
+                f"rest face: frame {s['rest_frame']}, "
                 f"{s['frames_per_second']:.1f} frames/s")
 
     def close(self) -> None:

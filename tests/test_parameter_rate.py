@@ -77,7 +77,8 @@ def test_a_call_livelier_than_its_first_second_goes_a_level_coarser_and_keeps_th
     """The bundled clip's speaker is quiet in his first second and talks after it: at 1.5 kbit/s without a
     face, coded all through at the level that fitted his first second (4), a 2-second window took 1.24
     times the rate. A keyframe naming the header a level coarser now goes once the pace passes the rate:
-    every window within a tenth of it, and every frame decoded as the sender reconstructed it."""
+    every window within a tenth of it (as fd-send's own count says too), and every frame decoded as the
+    sender reconstructed it."""
     sent = []
     frame = PacketEncoder.frame
 
@@ -92,6 +93,7 @@ def test_a_call_livelier_than_its_first_second_goes_a_level_coarser_and_keeps_th
     chunks, bits, _ = sent_per_frame(call)
     assert call.header.quality == 4 and call.stats()["level_changes"] >= 1 and min(level for _, level in sent) < 4
     assert largest_window(bits) <= 1.1 * 1500
+    assert call.stats()["costliest_2s_kbit_per_s"] == pytest.approx(largest_window(bits) / 1000, abs=1e-3)
     decoder = StreamDecoder()
     events = decoder.feed(b"".join(chunks)) + decoder.close()
     decoded = [e for e in events if isinstance(e, Frame)]
@@ -109,6 +111,7 @@ def test_over_datagrams_the_level_moves_at_key_places_and_keeps_the_rate():
     decoder, decoded = DatagramDecoder(), []
     bits = datagrams_per_frame(call, lambda d: decoded.extend(e for e in decoder.receive(d) if isinstance(e, Frame)))
     assert call.stats()["level_changes"] >= 1 and largest_window(bits) <= 1.1 * 6000
+    assert call.stats()["costliest_2s_kbit_per_s"] == pytest.approx(largest_window(bits) / 1000, abs=1e-3)
     assert [f.seq for f in decoded] == list(range(clip_frames())) and not decoder.stats.damaged
 
 
