@@ -158,7 +158,8 @@ class PacketEncoder:
         ended = []  # the packet pending, where a new level's keyframe comes before its place
         if self._relevel is not None and (off == 0 or not self._relevel_at_place):
             key = True
-            ended = [] if self._coder is None else [self._flush(self._coder, stop_flag=True)]
+            if self._coder is not None:
+                ended.append(self._flush(self._coder, stop_flag=True))
             self._h, self._new_bit, self._held = self._relevel, models_for(self._relevel), None
             self._relevel, self.level_changes = None, self.level_changes + 1
         values = hold_or_round(self._h.coordinates(params), np.ones(len(params)), self._held, self._dead_zone)

@@ -122,8 +122,11 @@ class RateKeeper:
         if self._since >= second:
             pace = sum(list(self._recent)[-second:]) / second
             if pace * window > COARSER * self._allowed:
-                coarsest = self.level == min(QUALITIES)
-                self.level, self._since, self.short = self.level - (not coarsest), 0, coarsest
+                if self.level > min(QUALITIES):
+                    self.level -= 1
+                else:
+                    self.short = True
+                self._since = 0
                 return
         if (self._since >= window and self.level < self._finest and self.dead_zone == self._narrowest
                 and spent < FINER * self._allowed):

@@ -335,8 +335,9 @@ class SendSession:
             if self._pacing is not None:
                 packets = self._seal(self._pacing.step(8 * stream_size(packets, self.sealed), sum(self._recent))) \
                     + packets
-            self.stream_bytes += stream_size(packets, self.sealed)
-            bits = 8 * stream_size(packets, self.sealed)
+            size = stream_size(packets, self.sealed)
+            self.stream_bytes += size
+            bits = 8 * size
             self._window = sum(self._recent) + bits
             self._costliest = max(self._costliest, self._window)
             self._recent.append(bits)
@@ -470,8 +471,9 @@ class SendSession:
         if self.picture is not None:
             self.picture.close()
         packets = self._seal(self.encoder.end())
-        self.stream_bytes += stream_size(packets, self.sealed)
-        self._costliest = max(self._costliest, self._window + 8 * stream_size(packets, self.sealed))
+        size = stream_size(packets, self.sealed)
+        self.stream_bytes += size
+        self._costliest = max(self._costliest, self._window + 8 * size)
         return packets
 
     def _seal(self, packets: list[bytes]) -> list[bytes]:
