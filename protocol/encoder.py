@@ -276,6 +276,7 @@ class Datagrams:
         #: keyframe place (one that restarts reports nothing until it holds the header: the spell ends).
         self.lean = False
         self.repeated = 0  # bytes of the header's repeats so far
+        self.eager_repeated = 0  # of them, the bytes of the eager ones: those the later pace would not have sent
 
     def repeat_rate(self, key_seconds: float) -> float:
         """bit/s the header's repeats cost once the first ``eager`` keyframes (``key_seconds`` apart)
@@ -302,6 +303,8 @@ class Datagrams:
                 if not ending and self._repeats(last, k):
                     repeat = self._seal([self._header], preamble=True)
                     self.repeated += sum(map(len, repeat))
+                    if not self._repeats(last, k, eager=False):
+                        self.eager_repeated += sum(map(len, repeat))
                     out += repeat
             copies = self._recent[-self.copies:] if self.copies else []
             while copies and sum(map(len, copies)) + len(packet) > MAX_BODY:
@@ -327,11 +330,12 @@ class Datagrams:
         """Bytes a repeat of the header takes (its sealing's few bytes aside)."""
         return len(self._header)
 
-    def _repeats(self, last: int, place: int) -> bool:
-        """Whether the header goes again before a keyframe at ``place`` after one at ``last``."""
+    def _repeats(self, last: int, place: int, eager: bool = True) -> bool:
+        """Whether the header goes again before a keyframe at ``place`` after one at ``last`` (``eager``: the
+        first ones' repeats counted)."""
         every = max(self._every, HEADER_EVERY) if self.lean and self._every else self._every
-        return place > 0 and ((not self.joined and place <= self._eager and _passes(self._eager_every, last, place))
-                              or (every > 0 and _passes(every, last, place)))
+        eager = eager and not self.joined and place <= self._eager and _passes(self._eager_every, last, place)
+        return place > 0 and (eager or (every > 0 and _passes(every, last, place)))
 
     def _key_place(self, packet: bytes) -> int:
         """The keyframe ``packet``'s place: its first frame's number over the key interval, or

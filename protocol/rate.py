@@ -30,13 +30,16 @@ from facedeform.protocol.secure import envelope_bytes
 
 
 def sample_bits_per_second(header: Header, sample: Sequence[tuple[np.ndarray, bool]], frames_per_packet: int,
-                           dead_zone: float, seal_bytes: int = 0, copies: int | None = None) -> float:
+                           dead_zone: float, seal_bytes: int = 0, copies: int | None = None, key_every: int = 1
+                           ) -> float:
     """Bit/s of ``sample`` ((k,) params, face seen) coded as a byte stream of its own under ``header``
     (without its face model or end mark: what every second of the call costs). ``seal_bytes``: what
     sealing adds to each packet (``SecureSealer.overhead``, and the envelope's length field; a sealed
     packet also takes a sync byte). ``copies``: the packets go as datagrams, each carrying that many
-    packets before it again (``Datagrams``; the header's repeats for late joiners not counted)."""
+    packets before it again (``Datagrams``; the header's repeats for late joiners not counted).
+    ``key_every``: a keyframe at every so many of the header's key places (``PacketEncoder.key_every``)."""
     encoder = PacketEncoder(replace(header, model_size=0, preview_size=0), frames_per_packet, dead_zone=dead_zone)
+    encoder.key_every = key_every
     packets = [p for params, seen in sample for p in encoder.frame(params, seen)] + encoder.end()[:-1]
     if copies is None:
         size = stream_size(packets, sealed=bool(seal_bytes))
@@ -89,6 +92,7 @@ class RateKeeper:
         window = max(1, round(WINDOW * fps))
         self._allowed = window * bits_per_second / fps  # bits a window
         self._recent: deque[int] = deque(maxlen=window)
+        self._passing: deque[int] = deque(maxlen=window)  # bits of the same frames the caller sends once only
         self._narrowest = self.dead_zone = narrowest
         #: the quantiser level for the next frame, where the keeper moves it (None: the header's, fixed)
         self.level = level
@@ -99,10 +103,13 @@ class RateKeeper:
         #: what else the caller can shed (over datagrams, a copy of each packet) is its to shed
         self.short = False
 
-    def step(self, bits: int) -> float:
+    def step(self, bits: int, passing: int = 0) -> float:
         """The dead zone for the next frame, after one that cost ``bits`` (0 while its packet waits); a
-        new :attr:`level` where the keeper moves it."""
+        new :attr:`level` where the keeper moves it. ``passing``: bits beside them of what goes only for a
+        while (over datagrams, the eager repeats of the header at the call's start), which a finer level
+        must also leave room for but which a coarser one would not save."""
         self._recent.append(bits)
+        self._passing.append(passing)
         spent, allowed = sum(self._recent), self._allowed
         if spent > allowed:
             self.dead_zone = min(max(WIDEST, self._narrowest), self.dead_zone + MOVE)
@@ -129,5 +136,5 @@ class RateKeeper:
                 self._since = 0
                 return
         if (self._since >= window and self.level < self._finest and self.dead_zone == self._narrowest
-                and spent < FINER * self._allowed):
+                and spent + sum(self._passing) < FINER * self._allowed):
             self.level, self._since = self.level + 1, 0

@@ -58,6 +58,10 @@ from facedeform.sender.sources import open_source
 #: (a keyframe every 8: 12 and 14); against 2 frames a datagram and a keyframe every 10 (0.4 s; 18
 #: and 14) it cost 22 % more bits.
 DATAGRAM_KEYS = 0.24
+#: Where --bitrate cannot carry the parameters over datagrams even without copies, a keyframe at every
+#: 2nd, then 4th key place (about a second: a late joiner and a loss wait at most that long, as for the
+#: picture layer's keys).
+MOST_KEY_EVERY = 4
 
 
 def key_seconds(header: Header) -> float:
@@ -206,6 +210,9 @@ class SendSession:
         self._keeper: RateKeeper | None = None
         #: copies of each frames packet over datagrams: --redundancy, fewer where --bitrate cannot carry them
         self._copies = config.redundancy
+        #: over datagrams, a keyframe at every so many key places at least: more than one where --bitrate
+        #: cannot carry one at each even without copies (_check_room)
+        self._key_every = 1
         self._configure(DEFAULT_QUALITY if config.level is None else config.level)
         # once: a later _configure changes the level, not the layout, rule or face the view draws
         self._pixel_pose = PixelPose(model, self.header) if refines(model, self.header.names) else None
@@ -318,16 +325,23 @@ class SendSession:
                 self._stop_layer()  # the copies are back, and leave the layer too little
             elif self._lean_layer and self.picture is None and self._pacing is None:
                 self._start_layer()
-            repeats_before = 0 if self.datagrams is None else self.datagrams.repeated
+            repeats_before = (0, 0) if self.datagrams is None else (self.datagrams.repeated,
+                                                                     self.datagrams.eager_repeated)
             packets = self._seal(self.encoder.frame(result.params, result.landmarks is not None))
-            repeats = 0 if self.datagrams is None else 8 * (self.datagrams.repeated - repeats_before)
-            if self._keeper is not None:  # on the frames' bits: the repeats' share was taken off its aim
-                self.encoder.dead_zone = self._keeper.step(8 * stream_size(packets, self.sealed) - repeats)
+            repeats = eager = 0
+            if self.datagrams is not None:
+                repeats = 8 * (self.datagrams.repeated - repeats_before[0])
+                eager = 8 * (self.datagrams.eager_repeated - repeats_before[1])
+            if self._keeper is not None:  # on the frames' bits: the later repeats' share was taken off its aim
+                self.encoder.dead_zone = self._keeper.step(8 * stream_size(packets, self.sealed) - repeats, eager)
                 level = self._keeper.level
                 if level is not None and level != self.encoder.level:  # over datagrams at a key place
                     self.encoder.relevel(level, at_place=self.datagrams is not None)
-                if self._keeper.short and self.datagrams is not None and self._copies > 0:
-                    self._shed_copy(seq)
+                if self._keeper.short and self.datagrams is not None:
+                    if self._copies > 0:
+                        self._shed_copy(seq)
+                    else:
+                        self._fewer_keys(seq)
             drawn_from = self.encoder.reconstruction  # what the receiver decodes of this frame
             if self.picture is not None and result.frame is not None and drawn_from is not None:
                 packets = self._seal(self.picture.step(seq, result.frame, drawn_from, self.encoder, packets,
@@ -397,7 +411,7 @@ class SendSession:
         lean = self._link.lean
         self.datagrams.copies = 0 if lean else self._copies
         self.encoder.frames_per_packet = self.config.frames_per_packet or (STREAM_FRAMES if lean else DATAGRAM_FRAMES)
-        self.encoder.key_every = LEAN_KEYS if lean else 1
+        self.encoder.key_every = max(self._key_every, LEAN_KEYS if lean else 1)
         self.datagrams.joined, self.datagrams.lean = self._link.heard, lean
         if self.picture is not None:
             self.picture.key_every = LEAN_KEY_EVERY if lean else KEY_EVERY
@@ -414,13 +428,31 @@ class SendSession:
         self._warn(f"from frame {seq} the call costs more than the {bitrate / 1000:g} kbit/s asked at the coarsest "
                    f"level; {_copies_going(self._copies)}")
 
+    def _fewer_keys(self, seq: int) -> None:
+        """Over datagrams without copies, a keyframe at half as many key places from frame ``seq`` on (down to
+        MOST_KEY_EVERY), the call costing more than --bitrate at the coarsest level."""
+        if self._key_every >= MOST_KEY_EVERY:
+            return
+        self._key_every *= 2
+        self.encoder.key_every = max(self.encoder.key_every, self._key_every)
+        bitrate = self.config.bitrate or 0.0
+        self._warn(f"from frame {seq} the call costs more than the {bitrate / 1000:g} kbit/s asked at the coarsest "
+                   f"level without copies; {self._keys_going()}")
+
+    def _keys_going(self) -> str:
+        """How often keyframes go, said to the user where fewer go than the header's places."""
+        keys = key_seconds(self.header)
+        return (f"a keyframe goes every {self._key_every * keys:.2g} s instead of every {keys:.2g} s: a lost "
+                f"datagram costs the frames up to the next, and a receiver that joins late waits for it")
+
     def _check_room(self, quality: int, sample: Sequence[tuple[np.ndarray, bool]]) -> None:
         """Over datagrams, where the parameters as they go (their first second ``sample`` at ``quality``,
         with their copies and keyframes and the header's repeats) leave the picture layer too little to
         pay, it runs only while the link is lean (no copies: the receiver reports no loss) where that
         leaves it enough, else it is not sent (on a byte stream they keep within their share). Where
-        they take more than --bitrate with their copies, fewer copies go, down to none; where they still
-        do, says so."""
+        they take more than --bitrate with their copies, fewer copies go, down to none; where they then
+        take more than LEVEL_SHARE of it, a keyframe at fewer key places (up to MOST_KEY_EVERY); where they
+        still take more than it, says so."""
         bitrate, datagrams = self.config.bitrate, self.datagrams
         if bitrate is None:
             return
@@ -429,9 +461,10 @@ class SendSession:
         keys = key_seconds(header)
         repeats = 0.0 if datagrams is None else datagrams.repeat_rate(keys) + datagrams.eager_rate(keys)
 
-        def cost_with(copies: int | None) -> float:
+        def cost_with(copies: int | None, key_every: int = 1) -> float:
             return repeats + sample_bits_per_second(header, sample, self.config.packet_frames, self.config.dead_zone,
-                                                    0 if self.sealer is None else self.sealer.overhead, copies)
+                                                    0 if self.sealer is None else self.sealer.overhead, copies,
+                                                    key_every)
 
         cost, over = cost_with(None if datagrams is None else self._copies), ""
         if datagrams is not None:
@@ -445,6 +478,14 @@ class SendSession:
                            f"than the {bitrate / 1000:g} kbit/s asked; {_copies_going(copies)} "
                            f"(about {cost / 1000:.1f} kbit/s)")
                 self._copies = datagrams.copies = copies
+            every, full = 1, cost  # then fewer keyframes, with the room a level keeps (the call grows livelier)
+            while cost > self._level_share * bitrate and copies == 0 and every < MOST_KEY_EVERY:
+                every *= 2
+                cost = cost_with(0, every)
+            if every > 1:
+                self._key_every = self.encoder.key_every = every
+                self._warn(f"without copies the parameters would take about {full / 1000:.1f} of the "
+                           f"{bitrate / 1000:g} kbit/s asked; {self._keys_going()} (about {cost / 1000:.1f} kbit/s)")
             lean = sample_bits_per_second(header, sample, STREAM_FRAMES, self.config.dead_zone, 0, 0) + \
                 datagrams.repeat_rate(keys)
             self._parameter_costs = (cost, lean)

@@ -239,6 +239,19 @@ def test_keyframes_at_some_key_places_decode_the_same_and_keep_the_headers_pace(
     assert all(d != enc.header()[0] for x in tracks[:KEY * 4] for d in pack.add(enc.frame(x, True)))
 
 
+def test_the_eager_repeats_are_counted_apart_from_the_later_ones():
+    """What the sender's rate keeper leaves room for beside the frames (sender/session.py): the repeats
+    the later pace would not have sent. Eager before each of the first 4 keyframe places, later every
+    3rd: repeats at places 1, 2, 3, 4, 6 and 9, of which 1, 2 and 4 are eager."""
+    enc = PacketEncoder(header(), 2)
+    head = enc.header()[0]
+    pack = Datagrams(head, copies=0, header_every=3, eager=4, key_interval=KEY)
+    pack.add(enc.header())
+    for x in smooth_tracks(KEY * 10):
+        pack.add(enc.frame(x, True))
+    assert pack.repeated == 6 * len(head) and pack.eager_repeated == 3 * len(head)
+
+
 def test_a_small_header_goes_again_more_often_than_a_large_one():
     """By default the repeats cost at most 80 bits a keyframe (REPEAT_BITS): a header of 56 bytes (fd-send's
     default layout) every 6th keyframe, one of a kilobyte or more every HEADER_EVERY-th."""

@@ -68,6 +68,21 @@ def test_the_level_goes_coarser_a_second_at_a_time_while_the_pace_is_over_the_ra
     assert levels[-1] == 4 and all(b - a in (0, 1) for a, b in zip(levels[200:], levels[201:]))
 
 
+def test_the_level_goes_finer_only_where_the_window_has_room_for_what_passes_beside_the_frames_too():
+    """Bits that go only for a while (over datagrams, the header's eager repeats at the call's start) keep a
+    finer level from being taken that the window cannot pay for, but do not widen the dead zone: a coarser
+    level would not save them."""
+    keeper = RateKeeper(1000.0, FPS, narrowest=1.0, level=2, finest=4)
+    for _ in range(100):  # 250 bit/s of frames, well under FINER of the rate; 1250 more beside them
+        assert keeper.step(10, passing=50) == 1.0
+    assert keeper.level == 2
+    steps = 1
+    while keeper.step(10) and keeper.level == 2:
+        steps += 1
+    # once what passes in the window is under FINER of its 2000 bits less its 500 of frames: 13 frames' worth
+    assert FINER == 0.6 and keeper.level == 3 and steps == round(WINDOW * FPS) - 13
+
+
 def test_a_keeper_without_the_level_leaves_it():
     keeper = RateKeeper(1000.0, FPS, narrowest=1.0)
     assert all(keeper.step(400) and keeper.level is None for _ in range(100))
