@@ -281,15 +281,20 @@ class SendSession:
                 self._basis = first_basis(self.analyser.names, fps, sample)
             quality = self.header.quality
             if first and aim is not None:
-                if self.datagrams is not None:  # the header's repeats for late joiners come out of it too
-                    aim = max(0.0, aim - self.datagrams.repeat_rate(key_seconds(self.header)))
-                quality = quality_for_bitrate(self._header, sample, self._level_share * aim,
-                                              self.config.packet_frames, self.config.dead_zone,
-                                              0 if self.sealer is None else self.sealer.overhead,
-                                              self.config.redundancy if self.config.datagrams else None, self._finest)
                 # where the parameters keep the whole --bitrate, the level moves as the call grows livelier
                 # than its first second, or quieter (protocol/rate.py)
                 moves = self._layer_rate is None and not self.config.paced_face and self.config.bitrate is not None
+                start = aim
+                if self.datagrams is not None:  # the header's repeats for late joiners come out of it too
+                    self._configure(quality)  # the header as it goes, its basis now known: what they cost
+                    keys = key_seconds(self.header)
+                    aim = max(0.0, aim - self.datagrams.repeat_rate(keys))
+                    # and where they keep the whole rate, its first, eager repeats from the first seconds'
+                    start = max(0.0, aim - self.datagrams.eager_rate(keys)) if moves else aim
+                quality = quality_for_bitrate(self._header, sample, self._level_share * start,
+                                              self.config.packet_frames, self.config.dead_zone,
+                                              0 if self.sealer is None else self.sealer.overhead,
+                                              self.config.redundancy if self.config.datagrams else None, self._finest)
                 self._keeper = RateKeeper(aim, fps, self.config.dead_zone, quality if moves else None, self._finest)
             self._configure(quality)
             if first and aim is not None:
@@ -443,7 +448,7 @@ class SendSession:
         """How often keyframes go, said to the user where fewer go than the header's places."""
         keys = key_seconds(self.header)
         return (f"a keyframe goes every {self._key_every * keys:.2g} s instead of every {keys:.2g} s: a lost "
-                f"datagram costs the frames up to the next, and a receiver that joins late waits for it")
+                f"datagram costs the frames up to the next one, and a late joiner waits for it")
 
     def _check_room(self, quality: int, sample: Sequence[tuple[np.ndarray, bool]]) -> None:
         """Over datagrams, where the parameters as they go (their first second ``sample`` at ``quality``,
@@ -451,8 +456,9 @@ class SendSession:
         pay, it runs only while the link is lean (no copies: the receiver reports no loss) where that
         leaves it enough, else it is not sent (on a byte stream they keep within their share). Where
         they take more than --bitrate with their copies, fewer copies go, down to none; where they then
-        take more than LEVEL_SHARE of it, a keyframe at fewer key places (up to MOST_KEY_EVERY); where they
-        still take more than it, says so."""
+        take more than LEVEL_SHARE of it at the coarsest level (the call grows livelier than its first
+        second), a keyframe at fewer key places (up to MOST_KEY_EVERY); where they still take more than
+        it, says so."""
         bitrate, datagrams = self.config.bitrate, self.datagrams
         if bitrate is None:
             return
@@ -469,23 +475,26 @@ class SendSession:
         cost, over = cost_with(None if datagrams is None else self._copies), ""
         if datagrams is not None:
             over = " with the copies, keyframes and header repeats of udp://"
-            copies = self._copies
+            copies, every = self._copies, 1
             while cost > bitrate and copies > 0:  # --bitrate is the whole budget, the copies' too
                 copies -= 1
                 cost = cost_with(copies)
-            if copies < self._copies:
-                self._warn(f"with {self._copies} copies of each packet against loss the parameters would take more "
-                           f"than the {bitrate / 1000:g} kbit/s asked; {_copies_going(copies)} "
-                           f"(about {cost / 1000:.1f} kbit/s)")
-                self._copies = datagrams.copies = copies
-            every, full = 1, cost  # then fewer keyframes, with the room a level keeps (the call grows livelier)
-            while cost > self._level_share * bitrate and copies == 0 and every < MOST_KEY_EVERY:
+            full = cost  # then, at the coarsest level, fewer keyframes, with the room a level keeps
+            while (cost > self._level_share * bitrate and copies == 0 and quality == min(QUALITIES)
+                   and every < MOST_KEY_EVERY):
                 every *= 2
                 cost = cost_with(0, every)
+            going = []
+            if copies < self._copies:
+                going.append(f"with {self._copies} copies of each packet against loss the parameters would take "
+                            f"more than the {bitrate / 1000:g} kbit/s asked; {_copies_going(copies)}")
+                self._copies = datagrams.copies = copies
             if every > 1:
                 self._key_every = self.encoder.key_every = every
-                self._warn(f"without copies the parameters would take about {full / 1000:.1f} of the "
-                           f"{bitrate / 1000:g} kbit/s asked; {self._keys_going()} (about {cost / 1000:.1f} kbit/s)")
+                going.append(f"without copies the parameters would take about {full / 1000:.1f} kbit/s, so "
+                            f"{self._keys_going()}")
+            if going:
+                self._warn("; ".join(going) + f" (about {cost / 1000:.1f} kbit/s)")
             lean = sample_bits_per_second(header, sample, STREAM_FRAMES, self.config.dead_zone, 0, 0) + \
                 datagrams.repeat_rate(keys)
             self._parameter_costs = (cost, lean)
