@@ -7,11 +7,12 @@ The encoder records what the decoder will output for each coded frame
 quantised value, so it is the only exact prediction of the receiver.
 """
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
 from facedeform.common.errors import BitstreamError
+from facedeform.common.parameters import PLACING_PARAMS
 from facedeform.protocol.arith import Encoder
 from facedeform.protocol.entropy import GroupState
 from facedeform.protocol.framing import (
@@ -72,14 +73,20 @@ class PacketEncoder:
     every ``key_every``-th of the header's key places (a decoder takes a delta anywhere after a key;
     packets still end at every key place, since the decoder's rule for where a packet ends is fixed).
     :meth:`relevel` changes the quantiser level from the next frame on, which is then a keyframe.
+    ``rounded``: placing parameters coded by plain rounding whatever the dead zone (fd-send's head
+    rotation over a reference picture, fitted there to a fraction of a step: sender/session.py).
     """
 
     def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"",
-                 dead_zone: float = DEAD_ZONE) -> None:
+                 dead_zone: float = DEAD_ZONE, rounded: Sequence[str] = ()) -> None:
         if not 1 <= frames_per_packet <= MAX_COUNT:
             raise BitstreamError(f"frames per packet must be 1-{MAX_COUNT}")
         if len(model) != header.model_size:
             raise BitstreamError(f"header announces {header.model_size} model bytes, got {len(model)}")
+        if any(n not in PLACING_PARAMS for n in rounded):  # (a coding basis keeps these on axes of their own)
+            raise ValueError("only the placing parameters are coded by plain rounding")
+        #: coordinates coded by plain rounding whatever the dead zone (the ``rounded`` parameters')
+        self._rounded = np.array([n in rounded for n in header.names])
         self._stream_header = self._h = header
         self.frames_per_packet, self._model = frames_per_packet, model
         self._relevel: Header | None = None  # the level the next keyframe goes at, where it changes
@@ -162,7 +169,8 @@ class PacketEncoder:
                 ended.append(self._flush(self._coder, stop_flag=True))
             self._h, self._new_bit, self._held = self._relevel, models_for(self._relevel), None
             self._relevel, self.level_changes = None, self.level_changes + 1
-        values = hold_or_round(self._h.coordinates(params), np.ones(len(params)), self._held, self._dead_zone)
+        zone = np.where(self._rounded, 0.5, self._dead_zone) if self._rounded.any() else self._dead_zone
+        values = hold_or_round(self._h.coordinates(params), np.ones(len(params)), self._held, zone)
         if max(map(abs, values)) >= _MAX_INDEX:
             raise BitstreamError("parameter out of range for the stream's steps")
         self._held, self.reconstruction = values, self._h.values(values)

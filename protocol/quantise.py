@@ -41,9 +41,11 @@ def quantise(values: np.ndarray, steps: np.ndarray) -> list[int]:
     return [int(q) for q in np.rint(np.asarray(values, dtype=np.float64) / steps)]
 
 
-def hold_or_round(values: np.ndarray, steps: np.ndarray, held: list[int] | None, dead_zone: float) -> list[int]:
+def hold_or_round(values: np.ndarray, steps: np.ndarray, held: list[int] | None,
+                  dead_zone: float | np.ndarray) -> list[int]:
     """(k,) floats -> k ints: ``held`` (the decoder's last indices) where a value is less than
-    ``dead_zone`` steps from it, elsewhere the nearest index: error at most ``max(dead_zone, 0.5)`` steps.
+    ``dead_zone`` steps from it (one for all, or (k,) one each), elsewhere the nearest index: error at
+    most ``max(dead_zone, 0.5)`` steps.
 
     ``dead_zone`` 0.5 (or ``held`` None) is plain :func:`quantise`: a held index that close is the nearest.
     """

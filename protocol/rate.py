@@ -30,15 +30,17 @@ from facedeform.protocol.secure import envelope_bytes
 
 
 def sample_bits_per_second(header: Header, sample: Sequence[tuple[np.ndarray, bool]], frames_per_packet: int,
-                           dead_zone: float, seal_bytes: int = 0, copies: int | None = None, key_every: int = 1
-                           ) -> float:
+                           dead_zone: float, seal_bytes: int = 0, copies: int | None = None, key_every: int = 1,
+                           rounded: Sequence[str] = ()) -> float:
     """Bit/s of ``sample`` ((k,) params, face seen) coded as a byte stream of its own under ``header``
     (without its face model or end mark: what every second of the call costs). ``seal_bytes``: what
     sealing adds to each packet (``SecureSealer.overhead``, and the envelope's length field; a sealed
     packet also takes a sync byte). ``copies``: the packets go as datagrams, each carrying that many
     packets before it again (``Datagrams``; the header's repeats for late joiners not counted).
-    ``key_every``: a keyframe at every so many of the header's key places (``PacketEncoder.key_every``)."""
-    encoder = PacketEncoder(replace(header, model_size=0, preview_size=0), frames_per_packet, dead_zone=dead_zone)
+    ``key_every``: a keyframe at every so many of the header's key places (``PacketEncoder.key_every``);
+    ``rounded``: as ``PacketEncoder``'s."""
+    encoder = PacketEncoder(replace(header, model_size=0, preview_size=0), frames_per_packet, dead_zone=dead_zone,
+                            rounded=rounded)
     encoder.key_every = key_every
     packets = [p for params, seen in sample for p in encoder.frame(params, seen)] + encoder.end()[:-1]
     if copies is None:
@@ -53,12 +55,13 @@ def sample_bits_per_second(header: Header, sample: Sequence[tuple[np.ndarray, bo
 
 def quality_for_bitrate(header_at: Callable[[int], Header], sample: Sequence[tuple[np.ndarray, bool]],
                         bits_per_second: float, frames_per_packet: int, dead_zone: float, seal_bytes: int = 0,
-                        copies: int | None = None, finest: int = max(QUALITIES)) -> int:
+                        copies: int | None = None, finest: int = max(QUALITIES), rounded: Sequence[str] = ()) -> int:
     """The finest level up to ``finest`` whose ``header_at(level)`` codes ``sample`` within
-    ``bits_per_second``; the coarsest level if none does. ``copies``: as :func:`sample_bits_per_second`'s."""
+    ``bits_per_second``; the coarsest level if none does. ``copies``, ``rounded``: as
+    :func:`sample_bits_per_second`'s."""
     for quality in sorted((q for q in QUALITIES if q <= finest), reverse=True):
         if sample_bits_per_second(header_at(quality), sample, frames_per_packet, dead_zone,
-                                  seal_bytes, copies) <= bits_per_second:
+                                  seal_bytes, copies, rounded=rounded) <= bits_per_second:
             return quality
     return min(QUALITIES)
 

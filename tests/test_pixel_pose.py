@@ -5,10 +5,13 @@ import numpy as np
 import pytest
 
 from facedeform.codec.model.face_model import N_LANDMARKS
-from facedeform.common.parameters import PAPER_PARAMS, POSE_PARAMS
+from facedeform.common.parameters import PAPER_PARAMS, POSE_PARAMS, ROTATION_PARAMS
+from facedeform.protocol.stream import Frame, StreamDecoder, frame_bytes
 from facedeform.receiver.face_view import PictureView
+from facedeform.sender.config import SendConfig
 from facedeform.sender.pixel_pose import PixelPose, _shrink, refines
-from facedeform.sender.session import stream_header
+from facedeform.sender.session import SendSession, stream_header
+from tests.support import CLIP, clip_frames
 
 NAMES = PAPER_PARAMS + POSE_PARAMS
 RX, RZ, TX, TY = (NAMES.index(n) for n in ("rx", "rz", "tx", "ty"))
@@ -95,3 +98,24 @@ def test_only_a_picture_layout_is_refined(person):
 ])
 def test_the_working_picture_shrinks_a_whole_number_of_times_that_divides_both_sides(width, height, wanted, shrink):
     assert _shrink(width, height, wanted) == shrink
+
+
+
+@pytest.mark.slow
+def test_the_rotation_fitted_in_pixels_goes_rounded_whatever_the_dead_zone(face, tmp_path):
+    """fd-send over the speaker's reference picture with a dead zone of 3 steps: the other parameters
+    are held within it, and the head's rotation, fitted in pixels to a fraction of a step, goes within
+    half a step of the fit on every frame, as the decoder outputs it."""
+    dump = tmp_path / "dump.npz"
+    session = SendSession(str(CLIP), SendConfig(embed_face=False, dead_zone=3.0), face=face, dump=dump)
+    stream = b"".join(frame_bytes(packets) for packets in session.packets())
+    session.close()
+    decoder = StreamDecoder()
+    got = np.array([e.params for e in decoder.feed(stream) + decoder.close() if isinstance(e, Frame)])
+    with np.load(dump) as d:
+        sent = d["params"]
+    names = session.header.names
+    rotation = [names.index(n) for n in ROTATION_PARAMS]
+    error = np.abs(got - sent) / session.header.steps
+    assert len(got) == len(sent) == clip_frames()
+    assert error[:, rotation].max() <= 0.5 + 1e-9 and error.max() > 1.0

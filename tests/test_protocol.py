@@ -209,6 +209,35 @@ def test_dead_zone_keeps_a_jittering_value_still_and_costs_fewer_bits():
     assert len(held) < len(frame_bytes(encode(h, params, 4)[1:])) / 2
 
 
+def test_the_rounded_parameters_keep_to_half_a_step_whatever_the_dead_zone():
+    """fd-send's head rotation over a reference picture: the other parameters are held within the dead
+    zone of 3 steps, the rotation's within half a step of every frame's value, and the decoder outputs
+    what the encoder reconstructed."""
+    names = LAYOUTS[1]
+    h = header(names)
+    rotation = [names.index(n) for n in ("rx", "ry", "rz")]
+    params = walk(100, len(names))
+    params[:, rotation] *= 60  # about a step a frame, as a turning head's
+    enc = PacketEncoder(h, 2, dead_zone=3.0, rounded=("rx", "ry", "rz"))
+    packets, sent = enc.header(), []
+    for x in params:
+        packets += enc.frame(x, True)
+        sent.append(enc.reconstruction)
+    events, dec = decode(frame_bytes(packets + enc.end()))
+    got = [e for e in events if isinstance(e, Frame)]
+    error = np.abs(np.array(sent) - params) / h.steps
+    assert np.all(error[:, rotation] <= 0.5 + 1e-9) and error.max() > 1.0  # the others held further
+    assert len(got) == len(params) and not dec.stats.damaged
+    for f, r in zip(got, sent):
+        np.testing.assert_array_equal(f.params, r)
+
+
+def test_only_placing_parameters_are_rounded_apart():
+    """A coding basis mixes the other parameters' coordinates; the placing ones it keeps on axes of their own."""
+    with pytest.raises(ValueError, match="placing"):
+        PacketEncoder(header(), 1, rounded=("theta",))
+
+
 def test_dead_zone_out_of_range_is_refused():
     for bad in (0.4, 4.5, float("nan")):
         with pytest.raises(BitstreamError, match="dead zone"):
