@@ -519,7 +519,8 @@ class SendSession:
                 self._layer_rate = None
                 self._warn(said + "too little is left for the picture layer, which is not sent")
         if cost > bitrate:
-            self._warn(f"the parameters take about {cost / 1000:.1f} kbit/s at their coarsest{over}, more than "
+            level = "at their coarsest" if quality == min(QUALITIES) else f"at level {quality}"
+            self._warn(f"the parameters take about {cost / 1000:.1f} kbit/s {level}{over}, more than "
                        f"the {bitrate / 1000:g} asked: the stream will go over it")
 
     def end(self) -> list[bytes]:

@@ -7,6 +7,7 @@ import subprocess
 import pytest
 
 from facedeform.protocol.framing import PICTURE, SYNC, packet_type
+from facedeform.protocol.rate import RateKeeper
 from facedeform.protocol.report import SIZE, Report, encode_report, parse_report
 from facedeform.protocol.stream import DatagramDecoder, Frame
 from facedeform.sender.config import SendConfig
@@ -197,6 +198,35 @@ def test_fewer_keyframes_go_where_the_parameters_without_copies_take_most_of_the
     assert session.header.quality == 1 and session.datagrams.copies == 0 and session.encoder.key_every == 4
     assert sum("a keyframe goes every 0.96 s instead of every 0.24 s" in line for line in said) == 1
     assert largest_window(bits) <= 1.1 * 1500
+    assert [f.seq for f in frames] == list(range(75)) and not decoder.stats.damaged
+
+
+def test_keyframes_thin_out_mid_call_while_the_coarsest_level_without_copies_is_short(monkeypatch):
+    """Where the rate keeper says the coarsest level costs more than the rate (here from the second
+    second on, once a second) and no copies are left to shed, a keyframe goes at every 2nd key place,
+    then every 4th, never fewer; fd-send says so each time, and every frame still arrives."""
+    step, steps = RateKeeper.step, []
+
+    def short_from_the_second_second(keeper, *args):
+        zone = step(keeper, *args)
+        steps.append(len(steps))
+        keeper.short = steps[-1] in (25, 50, 74)
+        return zone
+
+    monkeypatch.setattr(RateKeeper, "step", short_from_the_second_second)
+    said: list[str] = []
+    session = SendSession(str(CLIP), SendConfig(bitrate=1850, datagrams=True, embed_face=False, redundancy=0),
+                          warn=said.append)
+    decoder, frames, every = DatagramDecoder(), [], []
+
+    def receive(datagram):
+        frames.extend(e for e in decoder.receive(datagram) if isinstance(e, Frame))
+        every.append(session.encoder.key_every)
+
+    datagrams_per_frame(session, receive)
+    assert every[0] == 1 and sorted(set(every)) == [1, 2, 4]
+    assert [line.split("; ")[1].split(":")[0] for line in said] == [
+        f"a keyframe goes every {gap} s instead of every 0.24 s" for gap in (0.48, 0.96)]
     assert [f.seq for f in frames] == list(range(75)) and not decoder.stats.damaged
 
 
