@@ -73,8 +73,10 @@ class PacketEncoder:
     every ``key_every``-th of the header's key places (a decoder takes a delta anywhere after a key;
     packets still end at every key place, since the decoder's rule for where a packet ends is fixed).
     :meth:`relevel` changes the quantiser level from the next frame on, which is then a keyframe.
-    ``rounded``: placing parameters coded by plain rounding whatever the dead zone (fd-send's head
-    rotation over a reference picture, fitted there to a fraction of a step: sender/session.py).
+    ``rounded``: placing parameters coded by plain rounding at the encoder's own dead zone (fd-send's
+    head pose over a reference picture, fitted there to a fraction of a step: sender/session.py), held
+    only by as much as :attr:`dead_zone` is later widened past it (``protocol.rate.RateKeeper``, keeping
+    a rate the coarsest level does not fit).
     """
 
     def __init__(self, header: Header, frames_per_packet: int = 1, model: bytes = b"",
@@ -85,8 +87,8 @@ class PacketEncoder:
             raise BitstreamError(f"header announces {header.model_size} model bytes, got {len(model)}")
         if any(n not in PLACING_PARAMS for n in rounded):  # (a coding basis keeps these on axes of their own)
             raise ValueError("only the placing parameters are coded by plain rounding")
-        #: coordinates coded by plain rounding whatever the dead zone (the ``rounded`` parameters')
-        self._rounded = np.array([n in rounded for n in header.names])
+        #: coordinates coded by plain rounding at the dead zone given here (the ``rounded`` parameters')
+        self._rounded, self._own_zone = np.array([n in rounded for n in header.names]), dead_zone
         self._stream_header = self._h = header
         self.frames_per_packet, self._model = frames_per_packet, model
         self._relevel: Header | None = None  # the level the next keyframe goes at, where it changes
@@ -169,7 +171,9 @@ class PacketEncoder:
                 ended.append(self._flush(self._coder, stop_flag=True))
             self._h, self._new_bit, self._held = self._relevel, models_for(self._relevel), None
             self._relevel, self.level_changes = None, self.level_changes + 1
-        zone = np.where(self._rounded, 0.5, self._dead_zone) if self._rounded.any() else self._dead_zone
+        zone: float | np.ndarray = self._dead_zone
+        if self._rounded.any():
+            zone = np.where(self._rounded, 0.5 + max(0.0, zone - self._own_zone), zone)
         values = hold_or_round(self._h.coordinates(params), np.ones(len(params)), self._held, zone)
         if max(map(abs, values)) >= _MAX_INDEX:
             raise BitstreamError("parameter out of range for the stream's steps")

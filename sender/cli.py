@@ -114,7 +114,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="a parameter is resent only once it is this many quantiser steps from what the "
                         f"receiver shows ({_span('dead_zone')}; default %(default)s): tracker jitter below it costs "
                         "no bits and a still face does not flicker, at up to this many steps of error; 0.5 is "
-                        "plain rounding (error at most half a step), which the head's rotation over a reference "
+                        "plain rounding (error at most half a step), which the head's pose over a reference "
                         "picture always gets")
     p.add_argument("--no-basis", action="store_true",
                    help="quantise each parameter on its own; by default the stream codes the principal "

@@ -16,7 +16,7 @@ from facedeform.codec.model.regions import DEFAULT_RULE
 from facedeform.common.errors import InputError
 from facedeform.common.limits import MAX_SIDE
 from facedeform.common.npz import NpzAppender
-from facedeform.common.parameters import BASIS_PARAMS, PLACING_PARAMS, ROTATION_PARAMS
+from facedeform.common.parameters import BASIS_PARAMS, PLACING_PARAMS, POSE_PARAMS
 from facedeform.common.stages import Source
 from facedeform.protocol.basis import principal_basis
 from facedeform.protocol.encoder import EAGER_GAP, EAGER_SECONDS
@@ -208,12 +208,12 @@ class SendSession:
             and layer_pays(config.bitrate, reference.image.shape[1::-1])) else None
         self._aim, self._finest, self._level_share = self._parameter_aim(resolve_layout(config.layout, model))
         self._keeper: RateKeeper | None = None
-        #: The head's rotation over a reference picture is coded by plain rounding whatever the dead zone:
+        #: The head's pose over a reference picture is coded by plain rounding whatever the dead zone:
         #: fitted there in pixels to a fraction of a step (sender/pixel_pose.py), held within a step it
-        #: drew the head that far off. On the nine dev crops at fd-send's defaults +0.001 to +0.051 dB
-        #: (+0.025 on average) for 2.4 % more rate, eight times what a finer level buys with as much;
-        #: at 4 kbit/s with the picture layer -0.002 dB on average (docs/bitstream.md).
-        self._rounded = ROTATION_PARAMS if refines(model, self.analyser.names) else ()
+        #: drew the head that far off. On the nine dev crops at fd-send's defaults +0.013 to +0.058 dB
+        #: (+0.038 on average) for 4 % more rate, several times what a finer level buys with as much
+        #: (docs/bitstream.md).
+        self._rounded = POSE_PARAMS if refines(model, self.analyser.names) else ()
         #: copies of each frames packet over datagrams: --redundancy, fewer where --bitrate cannot carry them
         self._copies = config.redundancy
         #: over datagrams, a keyframe at every so many key places at least: more than one where --bitrate

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from facedeform.codec.model.face_model import N_LANDMARKS
-from facedeform.common.parameters import PAPER_PARAMS, POSE_PARAMS, ROTATION_PARAMS
+from facedeform.common.parameters import PAPER_PARAMS, POSE_PARAMS
 from facedeform.protocol.stream import Frame, StreamDecoder, frame_bytes
 from facedeform.receiver.face_view import PictureView
 from facedeform.sender.config import SendConfig
@@ -102,10 +102,10 @@ def test_the_working_picture_shrinks_a_whole_number_of_times_that_divides_both_s
 
 
 @pytest.mark.slow
-def test_the_rotation_fitted_in_pixels_goes_rounded_whatever_the_dead_zone(face, tmp_path):
+def test_the_pose_fitted_in_pixels_goes_rounded_at_the_calls_dead_zone(face, tmp_path):
     """fd-send over the speaker's reference picture with a dead zone of 3 steps: the other parameters
-    are held within it, and the head's rotation, fitted in pixels to a fraction of a step, goes within
-    half a step of the fit on every frame, as the decoder outputs it."""
+    are held within it, and the head's pose (rotation, place and size), fitted in pixels to a fraction of
+    a step, goes within half a step of the fit on every frame, as the decoder outputs it."""
     dump = tmp_path / "dump.npz"
     session = SendSession(str(CLIP), SendConfig(embed_face=False, dead_zone=3.0), face=face, dump=dump)
     stream = b"".join(frame_bytes(packets) for packets in session.packets())
@@ -115,7 +115,7 @@ def test_the_rotation_fitted_in_pixels_goes_rounded_whatever_the_dead_zone(face,
     with np.load(dump) as d:
         sent = d["params"]
     names = session.header.names
-    rotation = [names.index(n) for n in ROTATION_PARAMS]
+    pose = [names.index(n) for n in POSE_PARAMS]
     error = np.abs(got - sent) / session.header.steps
     assert len(got) == len(sent) == clip_frames()
-    assert error[:, rotation].max() <= 0.5 + 1e-9 and error.max() > 1.0
+    assert error[:, pose].max() <= 0.5 + 1e-9 and error.max() > 1.0

@@ -209,8 +209,8 @@ def test_dead_zone_keeps_a_jittering_value_still_and_costs_fewer_bits():
     assert len(held) < len(frame_bytes(encode(h, params, 4)[1:])) / 2
 
 
-def test_the_rounded_parameters_keep_to_half_a_step_whatever_the_dead_zone():
-    """fd-send's head rotation over a reference picture: the other parameters are held within the dead
+def test_the_rounded_parameters_keep_to_half_a_step_at_the_encoders_dead_zone():
+    """fd-send's head pose over a reference picture: the other parameters are held within the dead
     zone of 3 steps, the rotation's within half a step of every frame's value, and the decoder outputs
     what the encoder reconstructed."""
     names = LAYOUTS[1]
@@ -230,6 +230,24 @@ def test_the_rounded_parameters_keep_to_half_a_step_whatever_the_dead_zone():
     assert len(got) == len(params) and not dec.stats.damaged
     for f, r in zip(got, sent):
         np.testing.assert_array_equal(f.params, r)
+
+
+def test_the_rounded_parameters_are_held_by_as_much_as_the_dead_zone_is_widened():
+    """A rate keeper widening the dead zone from 1 step to 3 (a rate the coarsest level does not fit)
+    holds the rounded parameters within 2.5 steps: the keeper's lever stays theirs too."""
+    names = LAYOUTS[1]
+    rotation = [names.index(n) for n in ("rx", "ry", "rz")]
+    params = walk(100, len(names))
+    params[:, rotation] *= 60
+    enc = PacketEncoder(header(names), 2, dead_zone=1.0, rounded=("rx", "ry", "rz"))
+    enc.header()
+    enc.dead_zone = 3.0
+    sent = []
+    for x in params:
+        enc.frame(x, True)
+        sent.append(enc.reconstruction)
+    error = np.abs(np.array(sent) - params)[:, rotation] / header(names).steps[rotation]
+    assert 0.5 < error.max() <= 2.5 + 1e-9
 
 
 def test_only_placing_parameters_are_rounded_apart():
