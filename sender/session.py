@@ -208,11 +208,11 @@ class SendSession:
             and layer_pays(config.bitrate, reference.image.shape[1::-1])) else None
         self._aim, self._finest, self._level_share = self._parameter_aim(resolve_layout(config.layout, model))
         self._keeper: RateKeeper | None = None
-        #: The head's pose over a reference picture is coded by plain rounding whatever the dead zone:
-        #: fitted there in pixels to a fraction of a step (sender/pixel_pose.py), held within a step it
-        #: drew the head that far off. On the nine dev crops at fd-send's defaults +0.013 to +0.058 dB
-        #: (+0.038 on average) for 4 % more rate, several times what a finer level buys with as much
-        #: (docs/bitstream.md).
+        #: The head's pose over a reference picture is coded by plain rounding at the call's dead zone (held
+        #: only as the rate keeper widens it): fitted there in pixels to a fraction of a step
+        #: (sender/pixel_pose.py), held within a step it drew the head that far off. On the nine dev crops
+        #: at fd-send's defaults +0.013 to +0.058 dB (+0.038 on average) for 4 % more rate, several times
+        #: what a finer level buys with as much (docs/bitstream.md).
         self._rounded = POSE_PARAMS if refines(model, self.analyser.names) else ()
         #: copies of each frames packet over datagrams: --redundancy, fewer where --bitrate cannot carry them
         self._copies = config.redundancy
@@ -351,10 +351,7 @@ class SendSession:
                 if level is not None and level != self.encoder.level:  # over datagrams at a key place
                     self.encoder.relevel(level, at_place=self.datagrams is not None)
                 if self._keeper.short and self.datagrams is not None:
-                    if self._copies > 0:
-                        self._shed_copy(seq)
-                    else:
-                        self._fewer_keys(seq)
+                    self._shed(seq)
             drawn_from = self.encoder.reconstruction  # what the receiver decodes of this frame
             if self.picture is not None and result.frame is not None and drawn_from is not None:
                 packets = self._seal(self.picture.step(seq, result.frame, drawn_from, self.encoder, packets,
@@ -431,26 +428,24 @@ class SendSession:
         self.lean_frames += lean
         return report
 
-    def _shed_copy(self, seq: int) -> None:
-        """One copy of each packet fewer from frame ``seq`` on, the call costing more than --bitrate at the
-        coarsest level (protocol/rate.py): the copies were chosen from its first second."""
-        self._copies -= 1
+    def _shed(self, seq: int) -> None:
+        """From frame ``seq`` on, the call costing more than --bitrate at the coarsest level
+        (protocol/rate.py): one copy of each packet fewer (the copies were chosen from its first second),
+        or without copies a keyframe at half as many key places, down to MOST_KEY_EVERY."""
         assert self.datagrams is not None
-        self.datagrams.copies = min(self.datagrams.copies, self._copies)
-        bitrate = self.config.bitrate or 0.0
-        self._warn(f"from frame {seq} the call costs more than the {bitrate / 1000:g} kbit/s asked at the coarsest "
-                   f"level; {_copies_going(self._copies)}")
-
-    def _fewer_keys(self, seq: int) -> None:
-        """Over datagrams without copies, a keyframe at half as many key places from frame ``seq`` on (down to
-        MOST_KEY_EVERY), the call costing more than --bitrate at the coarsest level."""
-        if self._key_every >= MOST_KEY_EVERY:
+        if self._copies > 0:
+            self._copies -= 1
+            self.datagrams.copies = min(self.datagrams.copies, self._copies)
+            level, going = "level", _copies_going(self._copies)
+        elif self._key_every < MOST_KEY_EVERY:
+            self._key_every *= 2
+            self.encoder.key_every = max(self.encoder.key_every, self._key_every)
+            level, going = "level without copies", self._keys_going()
+        else:
             return
-        self._key_every *= 2
-        self.encoder.key_every = max(self.encoder.key_every, self._key_every)
         bitrate = self.config.bitrate or 0.0
         self._warn(f"from frame {seq} the call costs more than the {bitrate / 1000:g} kbit/s asked at the coarsest "
-                   f"level without copies; {self._keys_going()}")
+                   f"{level}; {going}")
 
     def _keys_going(self) -> str:
         """How often keyframes go, said to the user where fewer go than the header's places."""
