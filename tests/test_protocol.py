@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from facedeform.common.errors import BitstreamError, FdError
@@ -126,6 +126,7 @@ def test_decoder_outputs_the_encoders_reconstruction_within_the_dead_zone(
 @given(st.sampled_from(LAYOUTS), st.integers(1, 8), st.integers(1, 30),
        st.dictionaries(st.integers(0, 59), st.sampled_from(QUALITIES), max_size=4), st.integers(0, 2**32 - 1),
        st.booleans(), st.booleans())
+@example(LAYOUTS[0], 7, 27, {1: 1, 28: 2}, 0, False, True)  # the last level's keyframe goes with the end mark
 def test_a_new_level_mid_stream_goes_from_a_keyframe_and_decodes_to_the_encoders_reconstruction(
         names, fpp, key, changes, seed, basis, at_place):
     """PacketEncoder.relevel: the frame after it (or, ``at_place``, the next key place) is a keyframe
@@ -140,7 +141,8 @@ def test_a_new_level_mid_stream_goes_from_a_keyframe_and_decodes_to_the_encoders
             enc.relevel(changes[i], at_place)
         packets += enc.frame(x, True)
         sent.append((enc.reconstruction, enc.level))
-    events, dec = decode(frame_bytes(packets + enc.end()))
+    packets += enc.end()  # (the last new level's keyframe may still be pending: it goes with the end mark)
+    events, dec = decode(frame_bytes(packets))
     got = frames(events)
     assert events[0] == h and not dec.stats.damaged and [f.seq for f in got] == list(range(60))
     for f, x, (r, level) in zip(got, params, sent):
