@@ -1,5 +1,7 @@
 """The picture layer's video and blocks (codec/render/frame_video.py), apart from a call."""
 
+import os
+
 import cv2
 import numpy as np
 import pytest
@@ -15,10 +17,12 @@ from facedeform.codec.render.frame_video import (
     choose_blocks,
     decode_blocks,
     encode_blocks,
+    encode_still,
     shrunk,
     video_parts,
     video_size,
 )
+from facedeform.common.scheduling import REAL_TIME
 
 PICTURE = (128, 96)  # w, h
 
@@ -168,3 +172,22 @@ def test_a_frame_shrunk_by_halves_is_within_a_level_of_one_step():
         got = shrunk(frame, size)
         assert got.shape == once.shape and np.abs(got.astype(int) - once).max() <= 1
         assert (got == once).all() == (side in (192, 100))  # a half, or no whole number: one step
+
+
+def real_time_threads() -> set[int]:
+    return {int(t) for t in os.listdir("/proc/self/task") if os.sched_getscheduler(int(t)) in REAL_TIME}
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task") or not REAL_TIME, reason="Linux's scheduling policies")
+def test_the_encoder_leaves_no_thread_real_time():
+    """Opened as root, SVT-AV1 makes the caller's thread and its own SCHED_FIFO 99; a spinning child
+    process (chromium, in the viewer's test) inherited it and starved the machine."""
+    before = real_time_threads()
+    encoder = VideoEncoder((64, 64), 4_000, 25)
+    encoder.encode(np.zeros((64, 64, 3), np.uint8), key=True)
+    encode_still(np.zeros((64, 64, 3), np.uint8), 30)
+    try:
+        assert real_time_threads() <= before
+        assert os.sched_getscheduler(0) not in REAL_TIME
+    finally:
+        encoder.close()

@@ -171,9 +171,10 @@ def screenshot(url: str, path: Path, profile: Path, tries: int = 3) -> np.ndarra
     beside the suite) it once did, exit status 0.
 
     Chromium runs in a process group of its own, without its zygote, and only its first process is
-    waited for, with a deadline; then the group is killed, whatever state its helpers are in. Once,
-    on a loaded machine, two zygote helpers hung in the kernel at exit: a run that waited for them
-    (subprocess.run, with chromium's output piped, which its helpers hold) never ended."""
+    waited for, with a deadline; then the group is killed, whatever state its helpers are in. Twice
+    a run never ended: chromium had inherited SCHED_FIFO from the suite's process (an SVT-AV1 encoder
+    opened as root makes its caller real-time, which common/scheduling.py now undoes), spun on both
+    cores and starved the suite's own deadline; its helpers then hung in the kernel at exit."""
     log = path.with_suffix(".log")
     for _ in range(tries):
         with log.open("wb") as err:

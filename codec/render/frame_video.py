@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 from numba import njit
 
+from facedeform.common.scheduling import kept_scheduling
 from facedeform.protocol.arith import AdaptiveBit, decode_run, encode_run
 
 BLOCK = 32  # pixels of the picture per model-or-video choice (16: four to seven times the bits for 0.24 dB)
@@ -111,7 +112,8 @@ class VideoEncoder:
         floor = f":min-qp={BOUNDED_MIN_QP}" if bitrate <= BOUNDED_RATE else ""
         codec.options = {"preset": PRESET, "svtav1-params":
                          f"pred-struct=1:keyint=0:scd=0:lookahead=0:rc=2:rtc={RTC}:hierarchical-levels=0{floor}"}
-        codec.open()
+        with kept_scheduling():  # as root, SVT-AV1 makes its threads and the caller's real-time
+            codec.open()
         self._codec, self._count, self.size, self._closed = codec, 0, size, False
 
     def encode(self, rgb: np.ndarray, key: bool = False) -> bytes:
@@ -182,7 +184,8 @@ def encode_still(rgb: np.ndarray, crf: int) -> bytes:
     codec.width, codec.height = even((width, height))
     codec.pix_fmt, codec.time_base = "yuv420p", Fraction(1, 25)
     codec.options = {"preset": STILL_PRESET, "crf": str(crf)}
-    codec.open()
+    with kept_scheduling():
+        codec.open()
     frame = av.VideoFrame.from_ndarray(to_yuv(padded), format="yuv420p")
     frame.pts = 0
     return _undelimited(b"".join(bytes(p) for p in [*codec.encode(frame), *codec.encode(None)]))
