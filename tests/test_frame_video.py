@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from facedeform.codec.render import frame_video
 from facedeform.codec.render.frame_video import (
     BLOCK,
     VideoDecoder,
@@ -172,6 +173,57 @@ def test_a_frame_shrunk_by_halves_is_within_a_level_of_one_step():
         got = shrunk(frame, size)
         assert got.shape == once.shape and np.abs(got.astype(int) - once).max() <= 1
         assert (got == once).all() == (side in (192, 100))  # a half, or no whole number: one step
+
+
+def textured_disc(side: int, dx: int) -> np.ndarray:
+    """(side, side, 3) uint8: a disc of fine stripes and spots on a soft background, ``dx`` pixels right
+    of the middle: a face's detail where the model draws it (dx 0) or where the video shows it."""
+    ys, xs = np.mgrid[:side, :side].astype(np.float32)
+    inside = (xs - side / 2 - dx) ** 2 + (ys - side / 2) ** 2 < (side / 3) ** 2
+    texture = 128 + 60 * np.sin((xs - dx) * 1.3) * np.cos(ys * 0.9) + 30 * np.sin((xs - dx + ys) * 0.4)
+    grey = np.where(inside, texture, 60 + ys / 4)
+    return np.repeat(np.clip(grey, 0, 255).astype(np.uint8)[:, :, None], 3, axis=2)
+
+
+@pytest.mark.parametrize("dx", [-5, 3, 6])
+def test_the_model_s_detail_lands_where_the_video_shows_it(dx, monkeypatch):
+    """The model draws the disc a few pixels from where the frame has it; the video (half the side)
+    shows the frame's place but not its stripes. Moved by the flow, the model's detail sharpens the
+    video where the frame has it: less than half the error of the detail added where the model drew it."""
+    side = 128
+    model, frame = textured_disc(side, 0), textured_disc(side, dx)
+    video = shrunk(frame, (side // 2, side // 2))
+    none = np.zeros(blocks_of((side, side)), bool)
+
+    def error(parts) -> float:
+        drawn = blend(model, parts, none, (side, side), (side // 2, side // 2))
+        return float(np.mean((drawn.astype(float) - frame) ** 2))
+
+    moved = error(video_parts(model, video))
+    monkeypatch.setattr(frame_video, "ALIGNED", 0)
+    assert moved < 0.5 * error(video_parts(model, video))
+
+
+def test_the_parts_are_the_same_on_any_number_of_threads():
+    """Both ends must draw the same pixels, whatever threads OpenCV has on each."""
+    model, video = textured_disc(128, 0), shrunk(textured_disc(128, 4), (64, 64))
+    threads = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(1)
+        one = video_parts(model, video)
+    finally:
+        cv2.setNumThreads(threads)
+    for mine, theirs in zip(one, video_parts(model, video), strict=True):
+        np.testing.assert_array_equal(mine, theirs)
+
+
+def test_where_nothing_was_moved_a_difference_is_disagreement(monkeypatch):
+    """A video 20 levels from the model agrees where the detail was moved onto it (what is left is the
+    video's coding) and not where it was not (a misplaced edge, where the detail draws a double one)."""
+    model, video = np.full((128, 128, 3), 120, np.uint8), np.full((64, 64, 3), 100, np.uint8)
+    assert (video_parts(model, video)[2] == 1).all()
+    monkeypatch.setattr(frame_video, "ALIGNED", 0)
+    assert (video_parts(model, video)[2] == 0).all()
 
 
 def real_time_threads() -> set[int]:

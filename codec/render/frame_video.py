@@ -32,6 +32,7 @@ import os
 from collections import deque
 from collections.abc import Callable
 from fractions import Fraction
+from functools import lru_cache
 from typing import cast
 
 import cv2
@@ -274,9 +275,26 @@ def decode_blocks(before: np.ndarray, data: bytes) -> tuple[np.ndarray, int] | N
     return before ^ changed.astype(bool).reshape(before.shape), used
 
 
-#: (the video scaled up to the model's picture, the model's picture at the video's size scaled back,
-#: (H, W) float32 how far the two agree: 1 where the model's detail is added)
+#: (the video scaled up to the model's picture, (H, W, 3) int16 the model's detail (its picture less
+#: its picture at the video's size) moved onto the video, (H, W) float32 how far the two agree: 1
+#: where the detail is added)
 VideoParts = tuple[np.ndarray, np.ndarray, np.ndarray]
+#: Pictures of at most this many pixels have the model's detail moved onto the video by optical flow
+#: (:func:`_alignment`). Larger ones add it where it is: the flow would cost more there than it is
+#: known to give (not measured above 256x256 crops), and a picture that large gets a video large
+#: enough to show most of the detail itself.
+ALIGNED = 720 * 576
+#: The flow is found at the video's size, at most this many pixels on its larger side: the model's
+#: picture is off from the video by a few of the video's pixels (a fold, the jaw, a turned head), and
+#: a coarser flow is smoother (DIS optical flow, OpenCV's medium preset; 1.0 ms at 128x128).
+FLOW_SIDE = 128
+FLOW_BLUR = 1.0  # the flow's Gaussian blur, in its own pixels: one fold of the model, one flow
+MOST_SHIFT = 8.0  # the flow's pixels: a larger shift is a wrong match, not the model's error
+#: How far the video and the model's coarse picture agree: most - apart / scale within 0..1 (apart:
+#: their mean absolute difference over the channels, blurred). Where the detail was moved onto the
+#: video, what is left apart is the video's blur and its coding, so the detail holds further (AGREE);
+#: unmoved, a difference is as likely a misplaced edge, where added detail draws a double one.
+AGREE, UNMOVED_AGREE = (2.0, 32.0), (1.5, 8.0)
 
 
 def blend(model: np.ndarray, parts: VideoParts, chosen: np.ndarray, picture_size: tuple[int, int],
@@ -286,11 +304,11 @@ def blend(model: np.ndarray, parts: VideoParts, chosen: np.ndarray, picture_size
     this model, the frame of ``video_size``; None: the picture's) with the model's detail added where
     its coarse picture agrees with the video's; the two meet softly over half a block, more where a
     video pixel covers more of the picture's (SEAM)."""
-    up, coarse, agree = parts
+    up, detail, agree = parts
     model = np.ascontiguousarray(model)
     out = np.empty_like(model)
     wider = 1.0 if video_size is None else min(SEAM, max(1.0, picture_size[0] / video_size[0]))
-    _mix(model, up, coarse, agree, _soft(chosen, picture_size, model.shape[1::-1], wider), out)
+    _mix(model, up, detail, agree, _soft(chosen, picture_size, model.shape[1::-1], wider), out)
     return out
 
 
@@ -307,18 +325,63 @@ def _soft(chosen: np.ndarray, picture_size: tuple[int, int], size: tuple[int, in
 def video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = None) -> VideoParts:
     """What :func:`blend` and :func:`choose_blocks` draw the video frame ``video`` (any size) with,
     over ``model`` ((H, W, 3) uint8): the video scaled up (``up`` if given: the same already at the
-    model's size, carried by the face), the model's coarse picture, and where the two agree. Made once
-    a frame. Where they agree is measured at the video's size, where both are as sharp as they are,
-    and scaled up: at 1920x1080 the parts took 8.4 ms with it measured at the picture's, 5.9 this way
-    (the nine crops at 4 and 10 kbit/s within 0.01 dB on average, 0.10 on any clip)."""
+    model's size, carried by the face), the model's detail, and where the two agree. Made once a
+    frame, by both ends alike.
+
+    The detail is what the video is too small to show: the model's picture less itself at the video's
+    size. Added where it is, it lands a few pixels off wherever the model's picture is (the lips, the
+    jaw line, a turned head), and draws a double edge; so on pictures up to ALIGNED it is first moved
+    to where the video shows it, by the optical flow from the video to the model's coarse picture.
+    On the nine dev crops at 4 kbit/s that gave +0.08 dB (-0.13 to +0.30), SSIM +0.001 and VMAF
+    +1.3 on average, at 10 kbit/s +0.19 dB, SSIM +0.005 and VMAF +4.0, every clip up
+    (docs/picture_layer.md). Where the two agree is measured at the video's size, where both are as
+    sharp as they are, and scaled up: at 1920x1080 the parts took 8.4 ms measured at the picture's,
+    5.9 this way."""
     h, w = model.shape[:2]
     small = video.shape[1::-1]
     up = cv2.resize(video, (w, h), interpolation=cv2.INTER_LINEAR) if up is None else np.ascontiguousarray(up)
-    model_small = shrunk(np.ascontiguousarray(model), small)
-    coarse = cv2.resize(model_small, (w, h), interpolation=cv2.INTER_LINEAR)
+    model = np.ascontiguousarray(model)
+    model_small = shrunk(model, small)
+    detail = cv2.subtract(model, cv2.resize(model_small, (w, h), interpolation=cv2.INTER_LINEAR), dtype=cv2.CV_16S)
     up_small = shrunk(up, small)
-    agree = _agreement(cv2.GaussianBlur(_apart(up_small, model_small), (0, 0), 1.0))
-    return up, coarse, cv2.resize(agree, (w, h), interpolation=cv2.INTER_LINEAR)
+    most, scale = UNMOVED_AGREE
+    if w * h <= ALIGNED:
+        flow = _alignment(up_small, model_small)
+        detail, model_small = _moved(detail, flow), _moved(model_small, flow)
+        most, scale = AGREE
+    agree = _agreement(cv2.GaussianBlur(_apart(up_small, model_small), (0, 0), 1.0), most, scale)
+    return up, detail, cv2.resize(agree, (w, h), interpolation=cv2.INTER_LINEAR)
+
+
+def _alignment(video: np.ndarray, model: np.ndarray) -> np.ndarray:
+    """(h, w, 2) float32, at most FLOW_SIDE on the larger side: for each pixel of ``video`` ((H, W, 3)
+    uint8), how far off (x, y, in the flow's pixels) ``model``'s picture (the same size) shows it."""
+    h, w = video.shape[:2]
+    scale = min(1.0, FLOW_SIDE / max(w, h))
+    size = (max(8, round(w * scale)), max(8, round(h * scale)))
+    grey = [cv2.cvtColor(shrunk(np.ascontiguousarray(image), size), cv2.COLOR_RGB2GRAY) for image in (video, model)]
+    dis = cv2.DISOpticalFlow.create(cv2.DISOpticalFlow_PRESET_MEDIUM)
+    flow = dis.calc(grey[0], grey[1], None)  # type: ignore[call-overload]  # None: no flow to start from
+    flow = cv2.GaussianBlur(flow, (0, 0), FLOW_BLUR)
+    length = np.sqrt((flow * flow).sum(axis=2, keepdims=True))
+    return flow * np.minimum(1.0, MOST_SHIFT / np.maximum(length, 1e-6)).astype(np.float32)
+
+
+def _moved(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
+    """``image`` ((H, W, C), uint8 or int16) with each pixel taken from where ``flow`` (any size, its
+    own pixels) points, the flow scaled to the image's size; beyond the edge the edge's pixels."""
+    h, w = image.shape[:2]
+    fh, fw = flow.shape[:2]
+    shift = cv2.resize(flow * np.array([w / fw, h / fh], np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+    xs, ys = _grid(w, h)
+    return cv2.remap(image, xs + shift[:, :, 0], ys + shift[:, :, 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+@lru_cache(maxsize=8)
+def _grid(w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) float32 (h, w) each: every pixel's own place, for cv2.remap."""
+    ys, xs = np.mgrid[:h, :w].astype(np.float32)
+    return xs, ys
 
 
 @njit(cache=True)
@@ -337,31 +400,31 @@ def _apart(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover - co
 
 
 @njit(cache=True)
-def _agreement(apart: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+def _agreement(apart: np.ndarray, most: float, scale: float) -> np.ndarray:  # pragma: no cover - compiled
     """``apart`` ((H, W) float32, overwritten) as how far the video and the model's coarse picture
-    agree: 1.5 - apart / 8 within 0..1, the float32 NumPy computes, in one pass instead of three
+    agree: most - apart / scale within 0..1, the float32 NumPy computes, in one pass instead of three
     (3.6 ms at 1080p, this under 1)."""
-    eighth, most, top = np.float32(8.0), np.float32(1.5), np.float32(1.0)
+    high, step, top = np.float32(most), np.float32(scale), np.float32(1.0)
     flat = apart.reshape(-1)
     for i in range(flat.size):
-        flat[i] = min(max(most - flat[i] / eighth, np.float32(0.0)), top)
+        flat[i] = min(max(high - flat[i] / step, np.float32(0.0)), top)
     return apart
 
 
 @njit(cache=True)
-def _mix(model, up, coarse, agree, soft, out) -> None:  # pragma: no cover - compiled
-    """out = soft * model + (1 - soft) * (up + agree * (model - coarse)), rounded into 0-255 (the
+def _mix(model, up, detail, agree, soft, out) -> None:  # pragma: no cover - compiled
+    """out = soft * model + (1 - soft) * (up + agree * detail), rounded into 0-255 (the
     model's pixel exactly where soft is 1), in float32 over the arrays seen flat (C-contiguous), in
     a loop without branches, which vectorises: at 1080p 2 ms. (Indexed as (y, x, c), with float64
     sums, a shortcut where soft is 1 and a float to uint8 conversion, it took 10-11 ms.)"""
     one, half, top = np.float32(1.0), np.float32(0.5), np.float32(255.0)
-    flat_model, flat_up, flat_coarse = model.reshape(-1), up.reshape(-1), coarse.reshape(-1)
+    flat_model, flat_up, flat_detail = model.reshape(-1), up.reshape(-1), detail.reshape(-1)
     flat_agree, flat_soft, flat_out = agree.reshape(-1), soft.reshape(-1), out.reshape(-1)
     for i in range(flat_soft.size):
         s, a = flat_soft[i], flat_agree[i]
         for c in range(3):
             m = np.float32(flat_model[3 * i + c])
-            sharpened = np.float32(flat_up[3 * i + c]) + a * (m - np.float32(flat_coarse[3 * i + c]))
+            sharpened = np.float32(flat_up[3 * i + c]) + a * np.float32(flat_detail[3 * i + c])
             v = s * m + (one - s) * sharpened + half
             flat_out[3 * i + c] = np.uint8(np.int32(min(max(v, np.float32(0.0)), top)))
 
@@ -381,15 +444,15 @@ def choose_blocks(model: np.ndarray, parts: VideoParts, frame: np.ndarray, befor
 
 
 @njit(cache=True, fastmath=True)
-def _block_errors(model, up, coarse, agree, frame, rows, columns, block):  # pragma: no cover - compiled
+def _block_errors(model, up, detail, agree, frame, rows, columns, block):  # pragma: no cover - compiled
     """(rows, columns) float64 each: per block of ``block`` pixels, the squared error against ``frame`` of the model's
-    picture and of the video's sharpened by the model's detail (up + agree (model - coarse), as
+    picture and of the video's sharpened by the model's detail (up + agree detail, as
     blend draws it before rounding). A row's pixels' errors first (a loop that vectorises, over the
     arrays seen flat as in _mix), then their sums per block: at 1920x1080 NumPy's whole-frame float32
     temporaries took about 100 ms a frame, this about 2."""
     by_model, by_video = np.zeros((rows, columns)), np.zeros((rows, columns))
     h, w = model.shape[:2]
-    flat_model, flat_up, flat_coarse = model.reshape(-1), up.reshape(-1), coarse.reshape(-1)
+    flat_model, flat_up, flat_detail = model.reshape(-1), up.reshape(-1), detail.reshape(-1)
     flat_frame, flat_agree = frame.reshape(-1), agree.reshape(-1)
     of_model, of_video = np.empty(w, np.float32), np.empty(w, np.float32)  # a row's pixels' errors
     for y in range(h):
@@ -399,7 +462,7 @@ def _block_errors(model, up, coarse, agree, frame, rows, columns, block):  # pra
             em, ev = np.float32(0.0), np.float32(0.0)
             for c in range(3):
                 m, f = np.float32(flat_model[3 * p + c]), np.float32(flat_frame[3 * p + c])
-                sharpened = np.float32(flat_up[3 * p + c]) + a * (m - np.float32(flat_coarse[3 * p + c]))
+                sharpened = np.float32(flat_up[3 * p + c]) + a * np.float32(flat_detail[3 * p + c])
                 em += (m - f) * (m - f)
                 ev += (sharpened - f) * (sharpened - f)
             of_model[x], of_video[x] = em, ev
