@@ -243,3 +243,14 @@ def test_the_encoder_leaves_no_thread_real_time():
         assert os.sched_getscheduler(0) not in REAL_TIME
     finally:
         encoder.close()
+
+
+def test_a_video_of_the_picture_s_size_draws_the_same_without_the_flow(monkeypatch):
+    """The model's detail is nothing where the video is as large as the picture: the flow is skipped."""
+    model, video = textured_disc(64, 0), textured_disc(64, 3)
+    chosen = np.zeros(blocks_of((64, 64)), bool)
+    chosen[0, 0] = True
+    drawn = blend(model, video_parts(model, video), chosen, (64, 64))
+    assert not video_parts(model, video)[1].any()
+    monkeypatch.setattr(frame_video, "_alignment", lambda *_: pytest.fail("no flow is needed"))
+    np.testing.assert_array_equal(blend(model, video_parts(model, video), chosen, (64, 64)), drawn)

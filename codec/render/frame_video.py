@@ -345,7 +345,7 @@ def video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = No
     detail = cv2.subtract(model, cv2.resize(model_small, (w, h), interpolation=cv2.INTER_LINEAR), dtype=cv2.CV_16S)
     up_small = shrunk(up, small)
     most, scale = UNMOVED_AGREE
-    if w * h <= ALIGNED:
+    if w * h <= ALIGNED and small != (w, h):  # a video of the picture's size leaves no detail to move
         flow = _alignment(up_small, model_small)
         detail, model_small = _moved(detail, flow), _moved(model_small, flow)
         most, scale = AGREE
