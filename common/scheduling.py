@@ -1,11 +1,12 @@
 """Keeps a library from making this process's threads real-time.
 
 SVT-AV1, opened by a process running as root, sets the calling thread to SCHED_FIFO at priority 99,
-and the encoder's threads it then starts inherit it (libsvtav1 as PyAV and imageio-ffmpeg ship it,
-measured on Linux). A real-time thread that spins is never preempted by ordinary ones: a test
-suite whose process had opened an encoder started headless chromium, which inherited the
-policy, spun on both cores and left the suite's own deadline no time to run. Every thread that an
-encoder's opening turned real-time goes back to what it was (new ones to the ordinary policy).
+and the encoder's threads it then starts inherit it (libsvtav1 as PyAV's wheel ships it, measured
+on Linux; imageio-ffmpeg's ffmpeg tries the same and fails, "Failed to set thread priority"). A
+real-time thread that spins is never preempted by ordinary ones: a test suite whose process had
+opened an encoder started headless chromium, which inherited the policy, spun on both cores and
+left the suite's own deadline no time to run. Every thread that an encoder's opening turned
+real-time goes back to what it was (new ones to the ordinary policy).
 """
 
 import contextlib
