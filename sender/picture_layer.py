@@ -238,7 +238,7 @@ class PictureLayer:
             rgb = self._looked(self._sized(frame_bgr))
             favour = self._favour()
             data = self._layer.make(seq, None, False, model, self._look.carry, lambda parts, before: choose_blocks(
-                model, parts, rgb, before, BLOCKS_ONLY_GAIN, favour, self._shrink))
+                parts, rgb, before, BLOCKS_ONLY_GAIN, favour, self._shrink))
             packets = [] if data is None else encoder.picture(seq, data)
             self._saved -= 8 * stream_size(packets, self._sealed)
         bits = 8 * stream_size(packets, self._sealed)
@@ -331,7 +331,7 @@ class PictureLayer:
             blur *= 1 - (seq - since) / (SHARPEN * self._fps)
             video = self._encoder.encode(cv2.GaussianBlur(small, (0, 0), blur) if blur > 0.25 else small, key)
         data = self._layer.make(seq, video, key, model, self._look.carry, lambda parts, before: choose_blocks(
-            model, parts, looked, before, favour=favour, shrink=self._shrink))
+            parts, looked, before, favour=favour, shrink=self._shrink))
         packets = [] if data is None else encoder.picture(seq, data)
         bits = 8 * stream_size(packets, self._sealed)
         if self._last_key is not None:  # the first key is the call's own: the window alone holds it

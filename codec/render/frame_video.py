@@ -8,8 +8,9 @@ the model's residual as a video did worse than AV1 of the frame (the residual's 
 the model is off, which costs more than the frame), and AV1 of the frame at 64x64 gave 26.1 dB at
 7.9 kbit/s: its motion search follows a turning head and a leaning body that the model cannot.
 The model keeps what a picture that small cannot show: where the sender finds the model's
-picture nearer the frame (a still face's detail, most of a still clip), that block is the model's;
-elsewhere the video's, sharpened by the model's detail where the two agree (:func:`blend`).
+picture nearer the frame (a still face's detail, most of a still clip), that block is the model's,
+moved by a pixel or two onto where the video shows it; elsewhere the video's, sharpened by the
+model's detail where the two agree (:func:`blend`).
 No library coder takes a rendered frame as its prediction; choosing per block is how the
 model gets into the picture. The numbers are in docs/picture_layer.md.
 
@@ -275,10 +276,10 @@ def decode_blocks(before: np.ndarray, data: bytes) -> tuple[np.ndarray, int] | N
     return before ^ changed.astype(bool).reshape(before.shape), used
 
 
-#: (the video scaled up to the model's picture, (H, W, 3) int16 the model's detail (its picture less
-#: its picture at the video's size) moved onto the video, (H, W) float32 how far the two agree: 1
-#: where the detail is added)
-VideoParts = tuple[np.ndarray, np.ndarray, np.ndarray]
+#: (the model's picture as its blocks draw it, moved onto the video; the video scaled up to the
+#: model's picture; (H, W, 3) int16 the model's detail (its picture less its picture at the video's
+#: size) moved onto the video; (H, W) float32 how far the two agree: 1 where the detail is added)
+VideoParts = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 #: Pictures of at most this many pixels have the model's detail moved onto the video by optical flow
 #: (:func:`_alignment`). Larger ones add it where it is: the flow would cost more there than it is
 #: known to give (not measured above 256x256 crops), and a picture that large gets a video large
@@ -290,6 +291,19 @@ ALIGNED = 720 * 576
 FLOW_SIDE = 128
 FLOW_BLUR = 1.0  # the flow's Gaussian blur, in its own pixels: one fold of the model, one flow
 MOST_SHIFT = 8.0  # the flow's pixels: a larger shift is a wrong match, not the model's error
+#: The flow's pixels the model's picture moves at most in its own blocks. The model is there because
+#: its detail is right; moved by the flow, it sits where the video shows the head (a turned head,
+#: a jaw line a pixel or two off) instead of drawing it twice against the video's blocks around.
+#: Nine dev crops at 4, 6, 8 and 10 kbit/s against the model as it is: +0.02, +0.20, +0.25 and
+#: +0.22 dB, VMAF +3.1, +4.4, +4.2 and +3.7; moved as far as the detail (8 px) +0.21 dB at 10
+#: kbit/s but -0.15 at 4 with the 5th percentile -0.45, the still faces' detail moved by the
+#: flow's noise; a choice per block between moved and not, coded beside the blocks, gained less
+#: (docs/picture_layer.md).
+MODEL_SHIFT = 2.0
+#: Within this many of the flow's pixels of the picture's border the model's move fades to none: DIS has
+#: nothing beyond the border to match, and in a flat background its noise moved the model's border rows
+#: (the bundled clip at 10 kbit/s: its dark top line smeared down, 30.6 dB against 33.1 unmoved).
+EDGE = 8
 #: How far the video and the model's coarse picture agree: most - apart / scale within 0..1 (apart:
 #: their mean absolute difference over the channels, blurred). Where the detail was moved onto the
 #: video, what is left apart is the video's blur and its coding, so the detail holds further (AGREE);
@@ -297,15 +311,14 @@ MOST_SHIFT = 8.0  # the flow's pixels: a larger shift is a wrong match, not the 
 AGREE, UNMOVED_AGREE = (2.0, 32.0), (1.5, 8.0)
 
 
-def blend(model: np.ndarray, parts: VideoParts, chosen: np.ndarray, picture_size: tuple[int, int],
+def blend(parts: VideoParts, chosen: np.ndarray, picture_size: tuple[int, int],
           video_size: tuple[int, int] | None = None) -> np.ndarray:
-    """The picture drawn: ``model`` ((H, W, 3) uint8, any size) in the blocks ``chosen`` (True, of a
-    picture of ``picture_size``), elsewhere the video frame (``parts``: its :func:`video_parts` with
-    this model, the frame of ``video_size``; None: the picture's) with the model's detail added where
-    its coarse picture agrees with the video's; the two meet softly over half a block, more where a
-    video pixel covers more of the picture's (SEAM)."""
-    up, detail, agree = parts
-    model = np.ascontiguousarray(model)
+    """The picture drawn (``parts``: :func:`video_parts` of the video frame, of ``video_size``, None: the
+    picture's, over the model's picture): the model's picture moved onto the video in the blocks
+    ``chosen`` (True, of a picture of ``picture_size``), elsewhere the video frame with the model's
+    detail added where its coarse picture agrees with the video's; the two meet softly over half a
+    block, more where a video pixel covers more of the picture's (SEAM)."""
+    model, up, detail, agree = parts
     out = np.empty_like(model)
     wider = 1.0 if video_size is None else min(SEAM, max(1.0, picture_size[0] / video_size[0]))
     _mix(model, up, detail, agree, _soft(chosen, picture_size, model.shape[1::-1], wider), out)
@@ -324,9 +337,9 @@ def _soft(chosen: np.ndarray, picture_size: tuple[int, int], size: tuple[int, in
 
 def video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = None) -> VideoParts:
     """What :func:`blend` and :func:`choose_blocks` draw the video frame ``video`` (any size) with,
-    over ``model`` ((H, W, 3) uint8): the video scaled up (``up`` if given: the same already at the
-    model's size, carried by the face), the model's detail, and where the two agree. Made once a
-    frame, by both ends alike.
+    over ``model`` ((H, W, 3) uint8): the model's picture moved onto the video (MODEL_SHIFT), the
+    video scaled up (``up`` if given: the same already at the model's size, carried by the face), the
+    model's detail, and where the two agree. Made once a frame, by both ends alike.
 
     The detail is what the video is too small to show: the model's picture less itself at the video's
     size. Added where it is, it lands a few pixels off wherever the model's picture is (the lips, the
@@ -348,9 +361,10 @@ def video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = No
     if w * h <= ALIGNED and small != (w, h):  # a video of the picture's size leaves no detail to move
         flow = _alignment(up_small, model_small)
         detail, model_small = _moved(detail, flow), _moved(model_small, flow)
+        model = _moved(model, _bounded(flow, MODEL_SHIFT) * _edge_fade(*flow.shape[:2]))
         most, scale = AGREE
     agree = _agreement(cv2.GaussianBlur(_apart(up_small, model_small), (0, 0), 1.0), most, scale)
-    return up, detail, cv2.resize(agree, (w, h), interpolation=cv2.INTER_LINEAR)
+    return model, up, detail, cv2.resize(agree, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
 def _alignment(video: np.ndarray, model: np.ndarray) -> np.ndarray:
@@ -362,9 +376,13 @@ def _alignment(video: np.ndarray, model: np.ndarray) -> np.ndarray:
     grey = [cv2.cvtColor(shrunk(np.ascontiguousarray(image), size), cv2.COLOR_RGB2GRAY) for image in (video, model)]
     dis = cv2.DISOpticalFlow.create(cv2.DISOpticalFlow_PRESET_MEDIUM)
     flow = dis.calc(grey[0], grey[1], None)  # type: ignore[call-overload]  # None: no flow to start from
-    flow = cv2.GaussianBlur(flow, (0, 0), FLOW_BLUR)
+    return _bounded(cv2.GaussianBlur(flow, (0, 0), FLOW_BLUR), MOST_SHIFT)
+
+
+def _bounded(flow: np.ndarray, most: float) -> np.ndarray:
+    """``flow`` ((h, w, 2) float32) with every vector longer than ``most`` shortened to it."""
     length = np.sqrt((flow * flow).sum(axis=2, keepdims=True))
-    return flow * np.minimum(1.0, MOST_SHIFT / np.maximum(length, 1e-6)).astype(np.float32)
+    return flow * np.minimum(1.0, most / np.maximum(length, 1e-6)).astype(np.float32)
 
 
 def _moved(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
@@ -375,6 +393,14 @@ def _moved(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
     shift = cv2.resize(flow * np.array([w / fw, h / fh], np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
     xs, ys = _grid(w, h)
     return cv2.remap(image, xs + shift[:, :, 0], ys + shift[:, :, 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+@lru_cache(maxsize=8)
+def _edge_fade(h: int, w: int) -> np.ndarray:
+    """(h, w, 1) float32: 0 at the border, rising to 1 at EDGE pixels in (see EDGE)."""
+    ys, xs = np.mgrid[:h, :w].astype(np.float32)
+    inside = np.minimum(np.minimum(xs, w - 1 - xs), np.minimum(ys, h - 1 - ys))
+    return np.minimum(1.0, inside / EDGE)[:, :, None].astype(np.float32)
 
 
 @lru_cache(maxsize=8)
@@ -429,15 +455,14 @@ def _mix(model, up, detail, agree, soft, out) -> None:  # pragma: no cover - com
             flat_out[3 * i + c] = np.uint8(np.int32(min(max(v, np.float32(0.0)), top)))
 
 
-def choose_blocks(model: np.ndarray, parts: VideoParts, frame: np.ndarray, before: np.ndarray,
-                  hysteresis: float = 1.5, favour: np.ndarray | None = None, shrink: int = 1) -> np.ndarray:
+def choose_blocks(parts: VideoParts, frame: np.ndarray, before: np.ndarray, hysteresis: float = 1.5,
+                  favour: np.ndarray | None = None, shrink: int = 1) -> np.ndarray:
     """The sender's choice: the blocks where the model's picture is nearer ``frame`` than the
     video's (``parts``: as :func:`blend` takes them), by ``hysteresis`` times to change a block's last
     choice ``before`` (a choice that flickers costs bits and shows), the video's error counted
     ``favour`` times (per block); ``shrink``: the pictures are the picture's size over this
     (a divisor of BLOCK), so a block is BLOCK / shrink pixels of them."""
-    by_model, by_video = _block_errors(np.ascontiguousarray(model), *parts, np.ascontiguousarray(frame),
-                                       *before.shape, BLOCK // shrink)
+    by_model, by_video = _block_errors(*parts, np.ascontiguousarray(frame), *before.shape, BLOCK // shrink)
     if favour is not None:
         by_video = by_video * favour
     return np.where(before, by_model < hysteresis * by_video, hysteresis * by_model < by_video)
@@ -562,7 +587,7 @@ class VideoLayer:
         _, frame, chosen, since = self._states[0]
         if frame is None:
             return model
-        return blend(model, _carried_parts(model, frame, since, carry), chosen, self.picture_size, frame.shape[1::-1])
+        return blend(_carried_parts(model, frame, since, carry), chosen, self.picture_size, frame.shape[1::-1])
 
     def _decode(self, video: bytes, key: bool) -> np.ndarray | None:
         if key or self._decoder is None:

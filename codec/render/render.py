@@ -319,5 +319,5 @@ def warm_up() -> None:
     picture = np.zeros((64, 64, 3), np.uint8)
     parts = video_parts(picture, picture[::2, ::2])
     chosen = np.zeros(blocks_of((64, 64)), bool)
-    blend(picture, parts, choose_blocks(picture, parts, picture, chosen), (64, 64))
+    blend(parts, choose_blocks(parts, picture, chosen), (64, 64))
     decode_blocks(chosen, encode_blocks(chosen, chosen))
