@@ -276,9 +276,10 @@ def decode_blocks(before: np.ndarray, data: bytes) -> tuple[np.ndarray, int] | N
     return before ^ changed.astype(bool).reshape(before.shape), used
 
 
-#: (the model's picture as its blocks draw it, moved onto the video; the video scaled up to the
-#: model's picture; (H, W, 3) int16 the model's detail (its picture less its picture at the video's
-#: size) moved onto the video; (H, W) float32 how far the two agree: 1 where the detail is added)
+#: (the model's picture as its blocks draw it; the video scaled up to the model's picture; (H, W, 3)
+#: int16 the model's detail (its picture less its picture at the video's size); (H, W) float32 how far
+#: the two agree: 1 where the detail is added). Where the flow is made (ALIGNED), the picture and the
+#: detail are moved onto the video.
 VideoParts = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 #: Pictures of at most this many pixels have the model's detail moved onto the video by optical flow
 #: (:func:`_alignment`). Larger ones add it where it is: the flow would cost more there than it is
@@ -398,7 +399,7 @@ def _moved(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
 @lru_cache(maxsize=8)
 def _edge_fade(h: int, w: int) -> np.ndarray:
     """(h, w, 1) float32: 0 at the border, rising to 1 at EDGE pixels in (see EDGE)."""
-    ys, xs = np.mgrid[:h, :w].astype(np.float32)
+    xs, ys = _grid(w, h)
     inside = np.minimum(np.minimum(xs, w - 1 - xs), np.minimum(ys, h - 1 - ys))
     return np.minimum(1.0, inside / EDGE)[:, :, None].astype(np.float32)
 
