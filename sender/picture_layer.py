@@ -6,7 +6,7 @@ receiver will decode (``protocol.encoder.PacketEncoder.reconstruction``) and the
 layer (codec.render.frame_video.VideoLayer) on every payload it sends, so it knows, bit for bit, what
 the receiver draws. For each frame it may send, it codes the frame scaled down, decodes it as
 the receiver will, and chooses the blocks where the model's picture is nearer the frame than the
-video's.
+video's, and whether the model's picture there is moved onto the video or drawn where it is.
 """
 
 from collections import deque
@@ -22,7 +22,7 @@ from facedeform.codec.render.frame_video import (
     VideoEncoder,
     VideoLayer,
     blocks_in,
-    choose_blocks,
+    choose_payload,
     shrunk,
     video_size,
 )
@@ -237,8 +237,8 @@ class PictureLayer:
         elif self._layer.frame is not None and min(self._saved, room) >= 8 * (PACKING + 4):
             rgb = self._looked(self._sized(frame_bgr))
             favour = self._favour()
-            data = self._layer.make(seq, None, False, model, self._look.carry, lambda parts, before: choose_blocks(
-                parts, rgb, before, BLOCKS_ONLY_GAIN, favour, self._shrink))
+            data = self._layer.make(seq, None, False, model, self._look.carry, lambda parts, still, before:
+                                    choose_payload(parts, still, rgb, before, BLOCKS_ONLY_GAIN, favour, self._shrink))
             packets = [] if data is None else encoder.picture(seq, data)
             self._saved -= 8 * stream_size(packets, self._sealed)
         bits = 8 * stream_size(packets, self._sealed)
@@ -330,8 +330,8 @@ class PictureLayer:
             blur, since = self._soft
             blur *= 1 - (seq - since) / (SHARPEN * self._fps)
             video = self._encoder.encode(cv2.GaussianBlur(small, (0, 0), blur) if blur > 0.25 else small, key)
-        data = self._layer.make(seq, video, key, model, self._look.carry, lambda parts, before: choose_blocks(
-            parts, looked, before, favour=favour, shrink=self._shrink))
+        data = self._layer.make(seq, video, key, model, self._look.carry, lambda parts, still, before:
+                                choose_payload(parts, still, looked, before, favour=favour, shrink=self._shrink))
         packets = [] if data is None else encoder.picture(seq, data)
         bits = 8 * stream_size(packets, self._sealed)
         if self._last_key is not None:  # the first key is the call's own: the window alone holds it

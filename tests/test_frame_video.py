@@ -16,6 +16,7 @@ from facedeform.codec.render.frame_video import (
     blocks_in,
     blocks_of,
     choose_blocks,
+    choose_payload,
     decode_blocks,
     encode_blocks,
     encode_still,
@@ -69,8 +70,8 @@ def test_both_ends_of_a_video_hold_the_same_frames_and_blocks():
     encoder = VideoEncoder((64, 64), 20_000, 25)
     model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
     for seq, frame in enumerate(frames(6)):
-        def choose(parts, before, odd=seq % 2):
-            return np.eye(*before.shape, dtype=bool) if odd else before
+        def choose(parts, still, before, odd=seq % 2, moved=seq % 3 != 1):
+            return (np.eye(*before.shape, dtype=bool) if odd else before), moved
 
         data = sender.make(seq, encoder.encode(frame, key=seq == 0), seq == 0, model, None, choose)
         assert receiver.take(seq, data)
@@ -83,7 +84,7 @@ def test_a_gap_in_the_counter_draws_the_model_alone_until_the_next_key():
     sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
     encoder = VideoEncoder((64, 64), 20_000, 25)
     model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
-    keep = lambda parts, before: before  # noqa: E731
+    keep = lambda parts, still, before: (before, True)  # noqa: E731
     payloads = [sender.make(seq, encoder.encode(f, key=seq in (0, 4)), seq in (0, 4), model, None, keep)
                 for seq, f in enumerate(frames(6))]
     assert receiver.take(0, payloads[0]) and receiver.take(1, payloads[1])
@@ -98,8 +99,8 @@ def test_blocks_only_hand_blocks_to_the_model_over_the_held_frame():
     sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
     encoder = VideoEncoder((64, 64), 20_000, 25)
     model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
-    none = lambda parts, before: np.zeros_like(before)  # noqa: E731
-    every = lambda parts, before: np.ones_like(before)  # noqa: E731
+    none = lambda parts, still, before: (np.zeros_like(before), True)  # noqa: E731
+    every = lambda parts, still, before: (np.ones_like(before), True)  # noqa: E731
     assert receiver.take(0, sender.make(0, encoder.encode(frames(1)[0], key=True), True, model, None, none))
     assert sender.make(1, None, False, model, None, none) is None  # nothing changes: nothing to send
     data = sender.make(1, None, False, model, None, every)
@@ -221,6 +222,31 @@ def test_the_model_s_blocks_draw_it_where_the_video_shows_it(dx, monkeypatch):
     assert error(blend(video_parts(frame, video), every, (side, side), video.shape[1::-1])) < 0.005 * off
     monkeypatch.setattr(frame_video, "ALIGNED", 0)  # no flow: the model as it is
     np.testing.assert_array_equal(blend(video_parts(model, video), every, (side, side), video.shape[1::-1]), model)
+
+
+def test_a_payload_moves_the_model_only_where_that_draws_the_frame_nearer():
+    """Where the video shows the disc 3 pixels from where a right model has it (a blurred or coarse
+    video the flow follows), the payload keeps the model where it is; where the model is the one off,
+    it moves it onto the video."""
+    side = 128
+    every = np.ones(blocks_of((side, side)), bool)
+    right, off = textured_disc(side, 0), textured_disc(side, 3)
+    video = shrunk(off, (side // 2, side // 2))
+    assert not choose_payload(video_parts(right, video), right, right, every)[1]
+    assert choose_payload(video_parts(right, video), right, off, every)[1]
+
+
+def test_both_ends_draw_a_still_payload_s_model_where_it_is():
+    sender, receiver = VideoLayer((128, 128)), VideoLayer((128, 128))
+    encoder = VideoEncoder((64, 64), 20_000, 25)
+    model, video = textured_disc(128, 0), shrunk(textured_disc(128, 3), (64, 64))
+    for seq, moved in enumerate((True, False, True, False)):
+        data = sender.make(seq, encoder.encode(video, key=seq == 0), seq == 0, model, None,
+                           lambda parts, still, before, moved=moved: (np.ones_like(before), moved))
+        assert receiver.take(seq, data)
+        drawn = receiver.draw(seq, model)
+        np.testing.assert_array_equal(drawn, sender.draw(seq, model))
+        assert np.array_equal(drawn, model) != moved  # moved: onto the video's disc, 3 pixels right
 
 
 def test_the_model_s_border_is_not_moved(monkeypatch):

@@ -16,7 +16,7 @@ model gets into the picture. The numbers are in docs/picture_layer.md.
 
 A layer packet's payload (the picture packet of protocol/framing.py)::
 
-    flags (1 byte: bit 0 key, bit 1 blocks only, bits 2-7 a counter mod 64)
+    flags (1 byte: bit 0 key, bit 1 blocks only, bit 2 the model's blocks not moved, bits 3-7 a counter mod 32)
     | the model's blocks (arithmetic code) | AV1 temporal unit without its temporal delimiter
 
 Between video frames the last one is held, carried by the model's motion (the view's ``carry``,
@@ -79,7 +79,9 @@ BOUNDED_RATE, BOUNDED_MIN_QP = 10_000, 40
 STILL_PRESET = "4"
 _TEMPORAL_DELIMITER = b"\x12\x00"  # every temporal unit's first OBU: dropped on the wire
 _CHANGE = (20, 1)  # starting counts of a block's change: most blocks keep their choice
-KEY, BLOCKS_ONLY, COUNTER = 1, 2, 64
+#: A payload's flags: a key, blocks only, the model's blocks drawn where the model is (not moved onto the
+#: video), and a counter in the bits above (COUNTER values) by which a receiver knows it missed one.
+KEY, BLOCKS_ONLY, STILL, COUNTER = 1, 2, 4, 32
 SMALLEST_SIDE = 64  # pixels
 HELD = 64  # payloads held for frames not yet drawn: more than a receiver's buffer holds
 
@@ -278,8 +280,8 @@ def decode_blocks(before: np.ndarray, data: bytes) -> tuple[np.ndarray, int] | N
 
 #: (the model's picture as its blocks draw it; the video scaled up to the model's picture; (H, W, 3)
 #: int16 the model's detail (its picture less its picture at the video's size); (H, W) float32 how far
-#: the two agree: 1 where the detail is added). Where the flow is made (ALIGNED), the picture and the
-#: detail are moved onto the video.
+#: the two agree: 1 where the detail is added). Where the flow is made (ALIGNED), the detail is moved
+#: onto the video, and the picture too unless a payload says it stays (STILL, :func:`choose_payload`).
 VideoParts = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 #: Pictures of at most this many pixels have the model's detail moved onto the video by optical flow
 #: (:func:`_alignment`). Larger ones add it where it is: the flow would cost more there than it is
@@ -336,9 +338,10 @@ def _soft(chosen: np.ndarray, picture_size: tuple[int, int], size: tuple[int, in
     return cv2.resize(cv2.GaussianBlur(mask, (0, 0), wider * quarter / 4), size, interpolation=cv2.INTER_LINEAR)
 
 
-def video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = None) -> VideoParts:
+def video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = None, move: bool = True) -> VideoParts:
     """What :func:`blend` and :func:`choose_blocks` draw the video frame ``video`` (any size) with,
-    over ``model`` ((H, W, 3) uint8): the model's picture moved onto the video (MODEL_SHIFT), the
+    over ``model`` ((H, W, 3) uint8): the model's picture moved onto the video (MODEL_SHIFT; as it is
+    if not ``move``), the
     video scaled up (``up`` if given: the same already at the model's size, carried by the face), the
     model's detail, and where the two agree. Made once a frame, by both ends alike.
 
@@ -362,7 +365,8 @@ def video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = No
     if w * h <= ALIGNED and small != (w, h):  # a video of the picture's size leaves no detail to move
         flow = _alignment(up_small, model_small)
         detail, model_small = _moved(detail, flow), _moved(model_small, flow)
-        model = _moved(model, _bounded(flow, MODEL_SHIFT) * _edge_fade(*flow.shape[:2]))
+        if move:
+            model = _moved(model, _bounded(flow, MODEL_SHIFT) * _edge_fade(*flow.shape[:2]))
         most, scale = AGREE
     agree = _agreement(cv2.GaussianBlur(_apart(up_small, model_small), (0, 0), 1.0), most, scale)
     return model, up, detail, cv2.resize(agree, (w, h), interpolation=cv2.INTER_LINEAR)
@@ -464,6 +468,35 @@ def choose_blocks(parts: VideoParts, frame: np.ndarray, before: np.ndarray, hyst
     ``favour`` times (per block); ``shrink``: the pictures are the picture's size over this
     (a divisor of BLOCK), so a block is BLOCK / shrink pixels of them."""
     by_model, by_video = _block_errors(*parts, np.ascontiguousarray(frame), *before.shape, BLOCK // shrink)
+    return _chosen(by_model, by_video, before, hysteresis, favour)
+
+
+def choose_payload(parts: VideoParts, still: np.ndarray, frame: np.ndarray, before: np.ndarray,
+                   hysteresis: float = 1.5, favour: np.ndarray | None = None, shrink: int = 1
+                   ) -> tuple[np.ndarray, bool]:
+    """(the blocks, moved): what a payload says, :func:`choose_blocks` with the model's picture moved
+    onto the video as ``parts`` have it or ``still`` (the model's picture where it is, as ``parts`` were
+    made from), whichever draws ``frame`` nearer over the whole picture (moved where both do).
+
+    The move is right where the video shows the head where the model is a pixel or two off; where
+    the video is too blurred or too coarse to show it (a blurred key, the few bits of 4 kbit/s),
+    the flow follows the blur and moves a right model off: sadtalker_WDA_KatieHill's first frames at
+    4 kbit/s, every block the model's, drew 25.6 dB moved against the model's own 30.1."""
+    frame = np.ascontiguousarray(frame)
+    options = [(parts, True)] if parts[0] is still else [(parts, True), ((still, *parts[1:]), False)]
+    best: tuple[float, np.ndarray, bool] | None = None
+    for option, moved in options:
+        by_model, by_video = _block_errors(*option, frame, *before.shape, BLOCK // shrink)
+        chosen = _chosen(by_model, by_video, before, hysteresis, favour)
+        error = float(np.where(chosen, by_model, by_video).sum())
+        if best is None or error < best[0]:
+            best = (error, chosen, moved)
+    assert best is not None
+    return best[1], best[2]
+
+
+def _chosen(by_model: np.ndarray, by_video: np.ndarray, before: np.ndarray, hysteresis: float,
+            favour: np.ndarray | None) -> np.ndarray:
     if favour is not None:
         by_video = by_video * favour
     return np.where(before, by_model < hysteresis * by_video, hysteresis * by_model < by_video)
@@ -501,11 +534,11 @@ def _block_errors(model, up, detail, agree, frame, rows, columns, block):  # pra
 
 
 def _carried_parts(model: np.ndarray, frame: np.ndarray, since: int,
-                   carry: Callable[[np.ndarray, int], np.ndarray] | None) -> VideoParts:
-    """The video_parts of the layer's video ``frame`` (which shows frame ``since``) over ``model``, the
-    frame moved by ``carry`` to the one ``model`` draws (None: held still): what the sender's choice
-    and both ends' drawing see."""
-    return video_parts(model, frame, None if carry is None else carry(frame, since))
+                   carry: Callable[[np.ndarray, int], np.ndarray] | None, move: bool = True) -> VideoParts:
+    """The video_parts of the layer's video ``frame`` (which shows frame ``since``) over ``model``
+    (``move``: moved onto the video), the frame moved by ``carry`` to the one ``model`` draws (None: held
+    still): what the sender's choice and both ends' drawing see."""
+    return video_parts(model, frame, None if carry is None else carry(frame, since), move)
 
 
 class VideoLayer:
@@ -522,15 +555,16 @@ class VideoLayer:
         self._none = np.zeros(blocks_of(picture_size), dtype=bool)  # no block the model's
         self._counter: int | None = None  # the last payload's; None: waiting for a key
         #: (first frame, the video's frame or None for the model's picture alone, chosen blocks,
-        #: the frame the video's frame shows)
-        self._states: deque[tuple[int, np.ndarray | None, np.ndarray, int]] = deque(maxlen=HELD)
+        #: the frame the video's frame shows, whether the model's blocks are moved onto it)
+        self._states: deque[tuple[int, np.ndarray | None, np.ndarray, int, bool]] = deque(maxlen=HELD)
 
     def take(self, seq: int, payload: bytes) -> bool:
         """Read the payload of frame ``seq``; False if it cannot be used (damaged, or no key since a
         loss), after which the model's picture is drawn alone until the next key."""
         if not payload:
             return self._lost(seq)
-        key, only, counter = bool(payload[0] & KEY), bool(payload[0] & BLOCKS_ONLY), payload[0] >> 2
+        key, only, counter = bool(payload[0] & KEY), bool(payload[0] & BLOCKS_ONLY), payload[0] >> 3
+        move = not payload[0] & STILL
         if not key and (self._counter is None or counter != (self._counter + 1) % COUNTER):
             return self._lost(seq)
         blocks = decode_blocks(self._none if key else self.chosen, payload[1:])
@@ -539,28 +573,29 @@ class VideoLayer:
         frame = self.frame if only else self._decode(payload[1 + blocks[1]:], key)
         if frame is None:
             return self._lost(seq)
-        self._hold(seq, frame, blocks[0], counter, self._since if only else seq)
+        self._hold(seq, frame, blocks[0], counter, self._since if only else seq, move)
         return True
 
     def make(self, seq: int, video: bytes | None, key: bool, model: np.ndarray,
              carry: Callable[[np.ndarray, int], np.ndarray] | None,
-             choose: Callable[[VideoParts, np.ndarray], np.ndarray]) -> bytes | None:
+             choose: Callable[[VideoParts, np.ndarray, np.ndarray], tuple[np.ndarray, bool]]) -> bytes | None:
         """The payload of frame ``seq`` for the sender's temporal unit ``video`` (None: blocks only,
-        the last frame held), taken as :meth:`take` takes it; its blocks are ``choose(the video's
-        parts over the model's picture ``model``, the last choice)``, the decoded frame carried to
-        ``seq`` as :meth:`draw` carries it. None (nothing to send) for blocks only that change nothing."""
+        the last frame held), taken as :meth:`take` takes it; its blocks and whether the model's picture is
+        moved in them are ``choose(the video's parts over the model's picture ``model``, ``model``, the
+        last choice)`` (:func:`choose_payload`), the decoded frame carried to ``seq`` as :meth:`draw`
+        carries it. None (nothing to send) for blocks only that change nothing."""
         counter = 0 if self._counter is None else (self._counter + 1) % COUNTER
         frame = self.frame if video is None else self._decode(video, key)
         if frame is None:
             raise ValueError("no frame to hold" if video is None else "the layer's own video did not decode")
         since = self._since if video is None else seq
-        chosen = choose(_carried_parts(model, frame, since, carry), self.chosen)
-        if video is None and np.array_equal(chosen, self.chosen):
+        chosen, move = choose(_carried_parts(model, frame, since, carry), model, self.chosen)
+        if video is None and np.array_equal(chosen, self.chosen) and move == self._move:
             return None
         start = self._none if key else self.chosen
-        flags = int(key) | (BLOCKS_ONLY if video is None else 0) | counter << 2
+        flags = int(key) | (BLOCKS_ONLY if video is None else 0) | (0 if move else STILL) | counter << 3
         data = bytes([flags]) + encode_blocks(start, chosen) + (video or b"")
-        self._hold(seq, frame, chosen, counter, since)
+        self._hold(seq, frame, chosen, counter, since, move)
         return data
 
     @property
@@ -577,6 +612,10 @@ class VideoLayer:
     def _since(self) -> int:
         return self._states[-1][3] if self._states else -1
 
+    @property
+    def _move(self) -> bool:
+        return self._states[-1][4] if self._states else True
+
     def draw(self, seq: int, model: np.ndarray, carry: Callable[[np.ndarray, int], np.ndarray] | None = None
              ) -> np.ndarray:
         """The picture of frame ``seq`` whose model's picture is ``model``; ``carry(video frame, the
@@ -585,19 +624,20 @@ class VideoLayer:
             self._states.popleft()
         if not self._states or self._states[0][0] > seq:
             return model
-        _, frame, chosen, since = self._states[0]
+        _, frame, chosen, since, move = self._states[0]
         if frame is None:
             return model
-        return blend(_carried_parts(model, frame, since, carry), chosen, self.picture_size, frame.shape[1::-1])
+        return blend(_carried_parts(model, frame, since, carry, move), chosen, self.picture_size, frame.shape[1::-1])
 
     def _decode(self, video: bytes, key: bool) -> np.ndarray | None:
         if key or self._decoder is None:
             self._decoder = VideoDecoder(video_size(self.picture_size, max(self.picture_size)))
         return self._decoder.decode(video)
 
-    def _hold(self, seq: int, frame: np.ndarray | None, chosen: np.ndarray, counter: int | None, since: int) -> None:
+    def _hold(self, seq: int, frame: np.ndarray | None, chosen: np.ndarray, counter: int | None, since: int,
+              move: bool = True) -> None:
         self._counter = counter
-        self._states.append((seq, frame, chosen, since))
+        self._states.append((seq, frame, chosen, since, move))
 
     def _lost(self, seq: int) -> bool:
         self._decoder = None

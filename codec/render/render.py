@@ -310,7 +310,7 @@ def warm_up() -> None:
     from facedeform.codec.render.frame_video import (
         blend,
         blocks_of,
-        choose_blocks,
+        choose_payload,
         decode_blocks,
         encode_blocks,
         video_parts,
@@ -319,5 +319,5 @@ def warm_up() -> None:
     picture = np.zeros((64, 64, 3), np.uint8)
     parts = video_parts(picture, picture[::2, ::2])
     chosen = np.zeros(blocks_of((64, 64)), bool)
-    blend(parts, choose_blocks(parts, picture, chosen), (64, 64))
+    blend(parts, choose_payload(parts, picture, picture, chosen)[0], (64, 64))
     decode_blocks(chosen, encode_blocks(chosen, chosen))
