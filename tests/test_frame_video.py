@@ -15,7 +15,6 @@ from facedeform.codec.render.frame_video import (
     blend,
     blocks_in,
     blocks_of,
-    choose_blocks,
     choose_payload,
     decode_blocks,
     encode_blocks,
@@ -162,8 +161,8 @@ def test_blocks_in_a_box_and_a_favoured_model():
     model, video = frame + 12, np.full((24, 32, 3), 106, np.uint8)  # the video four times as near (squared)
     before = np.zeros(blocks_of(PICTURE), bool)
     parts = video_parts(model, video)
-    assert not choose_blocks(parts, frame, before).any()
-    assert choose_blocks(parts, frame, before, favour=np.where(inside, 8.0, 1.0)).sum() == 4
+    assert not choose_payload(parts, model, frame, before)[0].any()
+    assert choose_payload(parts, model, frame, before, favour=np.where(inside, 8.0, 1.0))[0].sum() == 4
 
 
 def test_a_frame_shrunk_by_halves_is_within_a_level_of_one_step():

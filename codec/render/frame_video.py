@@ -339,7 +339,7 @@ def _soft(chosen: np.ndarray, picture_size: tuple[int, int], size: tuple[int, in
 
 
 def video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = None, move: bool = True) -> VideoParts:
-    """What :func:`blend` and :func:`choose_blocks` draw the video frame ``video`` (any size) with,
+    """What :func:`blend` and :func:`choose_payload` draw the video frame ``video`` (any size) with,
     over ``model`` ((H, W, 3) uint8): the model's picture moved onto the video (MODEL_SHIFT; as it is
     if not ``move``), the
     video scaled up (``up`` if given: the same already at the model's size, carried by the face), the
@@ -460,23 +460,17 @@ def _mix(model, up, detail, agree, soft, out) -> None:  # pragma: no cover - com
             flat_out[3 * i + c] = np.uint8(np.int32(min(max(v, np.float32(0.0)), top)))
 
 
-def choose_blocks(parts: VideoParts, frame: np.ndarray, before: np.ndarray, hysteresis: float = 1.5,
-                  favour: np.ndarray | None = None, shrink: int = 1) -> np.ndarray:
-    """The sender's choice: the blocks where the model's picture is nearer ``frame`` than the
-    video's (``parts``: as :func:`blend` takes them), by ``hysteresis`` times to change a block's last
-    choice ``before`` (a choice that flickers costs bits and shows), the video's error counted
-    ``favour`` times (per block); ``shrink``: the pictures are the picture's size over this
-    (a divisor of BLOCK), so a block is BLOCK / shrink pixels of them."""
-    by_model, by_video = _block_errors(*parts, np.ascontiguousarray(frame), *before.shape, BLOCK // shrink)
-    return _chosen(by_model, by_video, before, hysteresis, favour)
-
-
 def choose_payload(parts: VideoParts, still: np.ndarray, frame: np.ndarray, before: np.ndarray,
                    hysteresis: float = 1.5, favour: np.ndarray | None = None, shrink: int = 1
                    ) -> tuple[np.ndarray, bool]:
-    """(the blocks, moved): what a payload says, :func:`choose_blocks` with the model's picture moved
-    onto the video as ``parts`` have it or ``still`` (the model's picture where it is, as ``parts`` were
-    made from), whichever draws ``frame`` nearer over the whole picture (moved where both do).
+    """The sender's choice, what a payload says: (the blocks where the model's picture is nearer
+    ``frame`` than the video's, moved): the model's picture moved onto the video as ``parts`` have it
+    (as :func:`blend` takes them) or ``still`` (the model's picture where it is, as ``parts`` were made
+    from), whichever draws ``frame`` nearer over the whole picture (moved where both do). A block's last
+    choice ``before`` changes only where the other is ``hysteresis`` times nearer (a choice that
+    flickers costs bits and shows), the video's error counted ``favour`` times (per block);
+    ``shrink``: the pictures are the picture's size over this (a divisor of BLOCK), so a block is
+    BLOCK / shrink pixels of them.
 
     The move is right where the video shows the head where the model is a pixel or two off; where
     the video is too blurred or too coarse to show it (a blurred key, the few bits of 4 kbit/s),
@@ -484,22 +478,14 @@ def choose_payload(parts: VideoParts, still: np.ndarray, frame: np.ndarray, befo
     4 kbit/s, every block the model's, drew 25.6 dB moved against the model's own 30.1."""
     frame = np.ascontiguousarray(frame)
     options = [(parts, True)] if parts[0] is still else [(parts, True), ((still, *parts[1:]), False)]
-    best: tuple[float, np.ndarray, bool] | None = None
+    tried = []
     for option, moved in options:
         by_model, by_video = _block_errors(*option, frame, *before.shape, BLOCK // shrink)
-        chosen = _chosen(by_model, by_video, before, hysteresis, favour)
-        error = float(np.where(chosen, by_model, by_video).sum())
-        if best is None or error < best[0]:
-            best = (error, chosen, moved)
-    assert best is not None
-    return best[1], best[2]
-
-
-def _chosen(by_model: np.ndarray, by_video: np.ndarray, before: np.ndarray, hysteresis: float,
-            favour: np.ndarray | None) -> np.ndarray:
-    if favour is not None:
-        by_video = by_video * favour
-    return np.where(before, by_model < hysteresis * by_video, hysteresis * by_model < by_video)
+        weighted = by_video if favour is None else by_video * favour
+        chosen = np.where(before, by_model < hysteresis * weighted, hysteresis * by_model < weighted)
+        tried.append((float(np.where(chosen, by_model, by_video).sum()), chosen, moved))
+    _, chosen, moved = min(tried, key=lambda t: t[0])  # the first of equals: moved
+    return chosen, moved
 
 
 @njit(cache=True, fastmath=True)
