@@ -10,8 +10,10 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial.transform import Rotation
 
-from facedeform.codec.model.deform import PRESETS, Deformer, extended_params
+from facedeform.codec.model.deform import KEEP_FACING, PRESETS, Deformer, extended_params
 from facedeform.codec.model.face_model import load_base_face
+from facedeform.codec.model.folds import Facing, facing_viewer
+from facedeform.codec.model.motion_basis import MotionBasis
 from facedeform.codec.model.mouth import LOWER_LIP_PARAMS
 from facedeform.codec.model.regions import FEATURE_NAMES, RULES
 from facedeform.common.errors import InputError
@@ -206,6 +208,33 @@ def test_the_fold_guard_changes_only_what_would_fold():
         assert_allclose(drawn, held + s * (params - held), rtol=0, atol=1e-15)
         assert d.would_fold(held + (s + 2.0 ** -11) * (params - held))
     assert 3 <= guarded <= 57
+
+
+def test_an_edge_on_sliver_turned_over_does_not_scale_the_mouth_back():
+    """The sliver in the mouth's right corner (inner corner 308, edge-on at rest) turned over by a speaker's
+    pattern that moves the corner alone: drawn as sent with the jaw open, where guarding every triangle
+    drew the whole mouth scaled back; the same pattern pushed on until a triangle facing the viewer
+    turns over is still scaled back."""
+    sliver = np.flatnonzero((np.sort(FACE.faces, axis=1) == [292, 308, 415]).all(axis=1))
+    assert len(sliver) == 1 and not facing_viewer(X, FACE.faces[sliver])[0]
+    a, b = X[292], X[415]
+    foot = a + (X[308] - a) @ (b - a) / ((b - a) @ (b - a)) * (b - a)
+    pattern = (foot - X[308])[None, None] / np.linalg.norm(foot - X[308])  # the corner across the sliver's edge
+    face = dataclasses.replace(FACE, motion=MotionBasis(np.array([308]), pattern))
+    d = Deformer(face, "refined")
+    names = ("theta", "basis_0")
+    skin = ~(d.upper.region >= 0)[FACE.faces].any(axis=1)  # below the upper face, which guards its own blinks
+    shown = skin & facing_viewer(X, FACE.faces)
+    every, guarded = (Facing(X, FACE.faces[m], (FACE.mouth_faces | FACE.eye_faces)[m]) for m in (skin, shown))
+    mesh = lambda c: d.blend(extended_params(names, [15.0, c]))  # noqa: E731
+    moved = next(c for c in np.arange(0.0005, 0.05, 0.0005) if every.kept(mesh(c))[skin[:sliver[0]].sum()] < -0.5)
+    assert every.folded(mesh(moved), KEEP_FACING).any() and not guarded.folded(mesh(moved), KEEP_FACING).any()
+    params = extended_params(names, [15.0, moved])
+    assert not d.would_fold(params)
+    assert_array_equal(d.unfold(params), params)
+    far = next(c for c in np.arange(moved, 0.5, 0.0005) if guarded.folded(mesh(c), KEEP_FACING).any())
+    assert d.would_fold(extended_params(names, [15.0, far]))
+    assert d.unfold(extended_params(names, [15.0, far]))[slots(("basis_0",))][0] < far
 
 
 def test_a_speakers_closed_mouth_opens_without_folding(face):

@@ -3,7 +3,7 @@
 A blend of feature vectors is linear, so vectors that carry one point past its
 neighbours (a lower lip sent down into the chin) turn the skin between them
 inside out. The refined rule (codec/model/deform.py) uses this to keep every triangle
-facing its own way; tests use it to say what a fold is.
+that faces the viewer facing its own way; tests use it to say what a fold is.
 """
 
 from __future__ import annotations
@@ -23,6 +23,12 @@ def normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.stack([by * cz - bz * cy, bz * cx - bx * cz, bx * cy - by * cx], axis=1)  # np.cross, 3x faster here
 
 
+def facing_viewer(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: the triangles ``faces`` (m, 3) of ``vertices`` that face the viewer (FACING_Z)."""
+    n = normals(vertices, faces)
+    return n[:, 2] > FACING_Z * np.linalg.norm(n, axis=1)
+
+
 class Facing:
     """How much of each triangle still faces the way it did at rest, for one mesh's triangles.
 
@@ -35,7 +41,7 @@ class Facing:
         rest_normals = normals(rest, self._faces)
         length = np.linalg.norm(rest_normals, axis=1)
         self._unit_over_area = rest_normals / (length * length)[:, None]
-        self._facing = rest_normals[:, 2] > FACING_Z * length
+        self._facing = facing_viewer(rest, self._faces)
         self._rest_z = np.where(self._facing, rest_normals[:, 2], 1.0)
 
     def kept(self, vertices: np.ndarray) -> np.ndarray:
