@@ -45,7 +45,12 @@ SMALLEST = 60
 #: share as planned, and a video frame is skipped while the video has spent more than its share
 #: of what the parameters really leave (skips spread evenly, where a full 2-second window once
 #: held a stale frame for 16 frames).
-BURST = 0.5  # seconds of its share the video may save up
+#: Seconds of its share the video may save up: less than one video frame's worth at 4 kbit/s, so that
+#: the frames go evenly. At 0.5 a quiet spell saved up two, which then went back to back and, with
+#: SVT-AV1's frames over their plan, filled the 2-second window before a head turn (sadtalker_RD_Radio34
+#: at 4 kbit/s: no video for frames 81-96 of its turn). The nine dev crops: +0.07 / -0.01 / +0.03 / +0.03
+#: dB at 4 / 6 / 8 / 10 kbit/s (docs/picture_layer.md).
+BURST = 0.15
 HEADROOM = 1.5  # a video frame goes only if the 2-second window has room for 1.5 times the usual one
 PARAMETER_MEMORY = 25  # frames over which the parameters' bits are averaged
 BLOCKS_SHARE = 0.1  # of the layer's rate, for payloads of blocks only between video frames
