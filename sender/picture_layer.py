@@ -38,8 +38,10 @@ PACKING = 9  # bytes a layer packet adds to its payload (sync, type, length, fra
 #: it really gets, then keeps to the rate (skipping frames it was told of made it spend the
 #: skipped frames' bits on the next, which the rate then skipped in turn). 60 rather than 40 (a
 #: frame every 5th frame at 4 kbit/s, not every 4th): fewer, better frames, which the model carries
-#: between them (docs/picture_layer.md).
-SMALLEST = 60
+#: between them; 75 rather than 60 once the frames went evenly (BURST; every 6th at 4 kbit/s, 4th at 6,
+#: 3rd at 8): on the nine dev crops +0.06 / +0.11 / +0.14 / +0.07 dB and VMAF +1.1 / +1.3 / +1.4 /
+#: +0.6 at 4 / 6 / 8 / 10 kbit/s, the 5th percentile +0.06 at 4, lower above (docs/picture_layer.md).
+SMALLEST = 75
 #: SVT-AV1's rate control in its low-delay mode misses at these sizes (by up to 30 % over on
 #: sadtalker_WDA_KatieHill at 30 kbit/s, 20 % under on lipnet): it is asked for the video's
 #: share as planned, and a video frame is skipped while the video has spent more than its share
