@@ -62,8 +62,9 @@ from facedeform.common.parameters import (
 
 FREE = ("F2", "F3", "F8", "F9")  # sent, in PAPER_PARAMS order
 JAW_FOLLOWING = ("F4", "F14", "F15")
-#: The refined rule's fold guard (module docstring) keeps this part of every skin triangle's rest area
-#: facing its own way, so that none is drawn edge-on either; the mouth's and eyes' fills may close.
+#: The refined rule's fold guard (module docstring) keeps this part of the rest area of every skin
+#: triangle that faces the viewer facing its own way, so that none is drawn edge-on either; the mouth's
+#: and eyes' fills may close.
 KEEP_FACING = 0.05
 #: Bisection steps of the guard: what it keeps of the motion is within 2^-12 of the most that folds nothing.
 FOLD_STEPS = 12
