@@ -17,7 +17,7 @@ from facedeform.common.npz import NpzAppender
 from facedeform.common.stages import Sink, StreamSource, View
 from facedeform.protocol.stream import Damage, End, Frame, Header, Model, Picture
 from facedeform.receiver.face_cache import FaceCache
-from facedeform.receiver.face_view import default_look, open_view, output_size
+from facedeform.receiver.face_view import PictureView, default_look, open_view, output_size
 
 LATENCY_WINDOW = 10_000  # frames: latency statistics cover the last 6-7 minutes at 25 fps
 
@@ -124,8 +124,6 @@ class ReceiveSession:
     def _picture_layer(self, event: Picture) -> None:
         """The picture layer's payload: handed to a view that draws the whole picture; one that
         cannot be used is reported, the model's picture drawn alone until the layer's next key."""
-        from facedeform.receiver.face_view import PictureView
-
         view = self._view
         if not isinstance(view, PictureView) or self.face_kind == "preview":  # the layer draws over the face itself
             return
@@ -214,6 +212,9 @@ class ReceiveSession:
                 self._dump = decoded_dump(self._dump_path, len(self._header.names))
             self._dump.add(params=frame.params, seq=frame.seq, face_seen=frame.face_seen,
                            concealed=frame.concealed, interpolated=frame.interpolated)
+        if isinstance(view, PictureView) and self.face_kind != "preview" and \
+                not view.advance(frame.params, frame.seq, exact=not frame.concealed):
+            self._warn(f"picture layer lost at frame {frame.seq}: the model's picture alone until its next key")
         # output frames whose time falls in this frame's interval: 1 at the stream's rate
         repeats = math.ceil((frame.seq + 1) * self._ratio) - math.ceil(frame.seq * self._ratio)
         if not repeats:

@@ -89,7 +89,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                       help="the stream's rate after its header, in kbit/s (--quality names five). With a --face "
                            "that has a reference picture (fd-enroll's default) and a rate where it pays, the "
                            "parameters aim at 20 %% of it (at least 1.2 kbit/s) and the rest carries the real frame "
-                           "as a small AV1 video, drawn "
+                           "as a small VP9 video coded from the model's own picture, drawn "
                            "where the face model cannot show the frame (the picture layer: what a turn, a lean or "
                            "a moving camera uncovers), the whole kept within 10 %% of the rate over any 2 s; more "
                            "kbit/s, a better picture (none below about 3 kbit/s at 256x256). Otherwise the "

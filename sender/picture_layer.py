@@ -1,4 +1,4 @@
-"""The picture layer at the sender: the real frame as a small AV1 video beside the model's picture,
+"""The picture layer at the sender: the real frame as a small VP9 video coded from the model's picture,
 under the rate the parameters leave (codec/render/frame_video.py).
 
 The sender runs the receiver's own view (receiver.face_view.PictureView) on the parameters the
@@ -32,24 +32,25 @@ from facedeform.sender.config import PARAMETER_FLOOR, parameter_rate
 WINDOW = 2.0  # seconds over which the whole stream must keep within MARGIN of its rate
 MARGIN = 1.0  # the layer fills the window to the rate: the parameters' own bursts take the 10 % above
 PACKING = 9  # bytes a layer packet adds to its payload (sync, type, length, frame, size, offset, check)
-#: Bytes of the smallest video packet to plan for: AV1's smallest frame at these sizes (about 20
+#: Bytes of the smallest video packet to plan for: the codec's smallest frame at these sizes (about 20
 #: bytes), its packing and blocks, and room for what moves. Below a rate that pays for one every
-#: frame, frames are sent every second, third... frame: SVT-AV1's rate control, told the frames
+#: frame, frames are sent every second, third... frame: the encoder's rate control, told the frames
 #: it really gets, then keeps to the rate (skipping frames it was told of made it spend the
 #: skipped frames' bits on the next, which the rate then skipped in turn). 60 rather than 40 (a
 #: frame every 5th frame at 4 kbit/s, not every 4th): fewer, better frames, which the model carries
 #: between them; 75 rather than 60 once the frames went evenly (BURST; every 6th at 4 kbit/s, 4th at 6,
 #: 3rd at 8): on the nine dev crops +0.06 / +0.11 / +0.14 / +0.07 dB and VMAF +1.1 / +1.3 / +1.4 /
-#: +0.6 at 4 / 6 / 8 / 10 kbit/s, the 5th percentile +0.06 at 4, lower above (docs/picture_layer.md).
+#: +0.6 at 4 / 6 / 8 / 10 kbit/s, the 5th percentile +0.06 at 4, lower above (docs/picture_layer.md;
+#: these with SVT-AV1, the layer's codec until stream version 17).
 SMALLEST = 75
-#: SVT-AV1's rate control in its low-delay mode misses at these sizes (by up to 30 % over on
+#: The encoder's rate control misses at these sizes (SVT-AV1's by up to 30 % over on
 #: sadtalker_WDA_KatieHill at 30 kbit/s, 20 % under on lipnet): it is asked for the video's
 #: share as planned, and a video frame is skipped while the video has spent more than its share
 #: of what the parameters really leave (skips spread evenly, where a full 2-second window once
 #: held a stale frame for 16 frames).
 #: Seconds of its share the video may save up: less than one video frame's worth at 4 kbit/s, so that
 #: the frames go evenly. At 0.5 a quiet spell saved up two, which then went back to back and, with
-#: SVT-AV1's frames over their plan, filled the 2-second window before a head turn (sadtalker_RD_Radio34
+#: the video's frames over their plan, filled the 2-second window before a head turn (sadtalker_RD_Radio34
 #: at 4 kbit/s: no video for frames 81-96 of its turn). The nine dev crops: +0.07 / -0.01 / +0.03 / +0.03
 #: dB at 4 / 6 / 8 / 10 kbit/s (docs/picture_layer.md).
 BURST = 0.15
@@ -92,27 +93,10 @@ CHOICE_SIDE = 480
 #: than they show (liveportrait_d11 at 1.5 kbit/s: 27.6 dB with a layer of 0.4 kbit/s, 28.2
 #: with the parameters alone).
 LEAST = 1_500
-#: Where the call's first key would take more than FIRST_KEY_SHARE of the 2-second window, it is coded
-#: from its picture blurred (FIRST_KEY_BLURS, Gaussian sigmas in the video's pixels, the least that
-#: brings it under FIRST_KEY_AIM): the model draws the detail where it agrees with the video, and the
-#: video frames after it, which then come in the first two seconds, refine the rest. On the nine dev
-#: crops only sadtalker_WDA_KatieHill's key passed the share (0.51 of the window at 4 kbit/s, 0.49 at
-#: 10; 0.16-0.33 on three others measured): +0.15 dB at 4 kbit/s (5th percentile 15.23 to 15.97),
-#: +0.27 at 10 (15.80 to 19.03); aiming at 0.35 itself, +0.06 and +0.20. A share of 0.25 blurred four
-#: keys at 10 kbit/s (+0.02 dB on average, tpsmm_driving -0.19) and seven at 4 (-0.01):
-#: docs/picture_layer.md.
-FIRST_KEY_SHARE, FIRST_KEY_AIM = 0.35, 0.25
-FIRST_KEY_BLURS = (1.0, 2.0, 3.0)
 #: Over datagrams a key that has waited twice key_every for room goes once the window has room for this
-#: share of the usual key, blurred as little as fits it (FIRST_KEY_BLURS): forced whole, it had taken
-#: the bundled clip's first 2 s to 1.21 times the rate at 8 kbit/s to a receiver that does not report,
-#: its first key still in the window. The most blurred keys are about half the sharp ones.
+#: share of the usual key: forced whole, it had taken the bundled clip's first 2 s to 1.21 times the rate
+#: at 8 kbit/s to a receiver that does not report, its first key still in the window.
 OVERDUE = 0.5
-#: Seconds over which the video frames after a blurred key sharpen back, from the key's blur to none:
-#: sent sharp, the first re-coded what the key left out (sadtalker_WDA_KatieHill at 4 kbit/s: 2,408 bits
-#: after a key of 1,912, and no room for another video frame until frame 23). 2 s: +0.12 dB there, its
-#: 5th percentile 15.97 to 16.74; 1 s: -0.14 dB; 4 s: +0.03 (docs/picture_layer.md).
-SHARPEN = 2.0
 
 
 def layer_rate(bitrate: float) -> float:
@@ -202,11 +186,9 @@ class PictureLayer:
         self._saved = 0.0  # bits saved for blocks only
         self._size = 8.0 * SMALLEST  # bits of a video packet, a running mean
         self._key_size = 0.0  # bits of a key's packets, a running mean
-        self._key_packing = 0  # bits the last key's packets took beside its video
         #: seconds between keys (None: the first only)
         self.key_every: float | None = KEY_EVERY if datagrams else None
         self._last_key: int | None = None
-        self._soft = (0.0, 0)  # (the blur of the last key, its frame): the video frames after it sharpen back
         self._last_video: int | None = None  # the last frame a video frame went with
         self._last: int | None = None  # the last frame stepped
         self.packets = self.bits = 0
@@ -230,7 +212,7 @@ class PictureLayer:
         waiting = overdue = False
         if since is not None and every is not None:
             # a key due waits, and the video with it, until the window has room for it; after twice
-            # key_every, until it has room for OVERDUE of it, and it is then blurred to fit (_fitted_key)
+            # key_every, until it has room for OVERDUE of it
             waiting, overdue = since > every, since > 2 * every
         key = since is None or (waiting and room >= (OVERDUE if overdue else 1.0) * self._key_size)
         self._parameter_bits += (spent - self._parameter_bits) / PARAMETER_MEMORY
@@ -240,7 +222,7 @@ class PictureLayer:
         self._credit = min(self._credit + share, BURST * share * self._fps)
         due = self._last_video is None or seq - self._last_video >= self._every
         if due and (key or (not waiting and self._credit >= 0 and room >= HEADROOM * self._size)):
-            packets = self._send(seq, self._sized(frame_bgr), model, key, encoder, room)
+            packets = self._send(seq, self._sized(frame_bgr), params, model, key, encoder)
         elif self._layer.frame is not None and min(self._saved, room) >= 8 * (PACKING + 4):
             rgb = self._looked(self._sized(frame_bgr))
             favour = self._favour()
@@ -288,24 +270,6 @@ class PictureLayer:
         if self._encoder is not None:
             self._encoder.close()
 
-    def _fitted_key(self, seq: int, small: np.ndarray, sharp_most: float, most: float) -> tuple[bytes, int]:
-        """(a key of ``small``, the bits its sharp try took more): ``small`` as it is if its key takes at
-        most ``sharp_most`` bits, else blurred as little as brings it under ``most`` (the most blurred if
-        none does), each try on an encoder of its own; the one whose key goes codes the call from then on."""
-        blurs, sharp = (0.0, *FIRST_KEY_BLURS), 0
-        for blur in blurs:
-            encoder = VideoEncoder(self._video_size, *self._encoder_rate)
-            video = encoder.encode(small if blur == 0 else cv2.GaussianBlur(small, (0, 0), blur), True)
-            sharp = sharp or len(video)
-            if 8 * len(video) <= (most if blur else sharp_most) or blur == blurs[-1]:
-                break
-            encoder.close()
-        if self._encoder is not None:
-            self._encoder.close()
-        self._encoder = encoder
-        self._soft = (blur, seq)
-        return video, 8 * (sharp - len(video))
-
     def _sized(self, frame_bgr: np.ndarray) -> np.ndarray:
         """``frame_bgr`` at the picture's size."""
         same = frame_bgr.shape[1::-1] == self.size
@@ -315,38 +279,27 @@ class PictureLayer:
         """``bgr`` (at the picture's size) in RGB at the size the choice is made at."""
         return cv2.cvtColor(shrunk(bgr, self._look.size), cv2.COLOR_BGR2RGB)
 
-    def _send(self, seq: int, bgr: np.ndarray, model: np.ndarray, key: bool, encoder: PacketEncoder,
-              room: float) -> list[bytes]:
-        """The packets of a video frame (a key if ``key``) for frame ``seq``, with ``room`` bits left in the
-        window. The call's first key takes at most FIRST_KEY_SHARE of the window, or is blurred under
-        FIRST_KEY_AIM; a later key that does not fit the room (OVERDUE) is blurred to fit it. Keys are
-        planned on their sharp tries' sizes: planned on a blurred one's, sadtalker_WDA_KatieHill's second
-        key at 4 kbit/s went into a window without room for it (1.28 times the rate)."""
+    def _send(self, seq: int, bgr: np.ndarray, params: np.ndarray, model: np.ndarray, key: bool,
+              encoder: PacketEncoder) -> list[bytes]:
+        """The packets of a video frame (a key if ``key``) for frame ``seq`` of parameters ``params``,
+        coded from the model's picture of it (codec/render/frame_video.VideoEncoder)."""
         favour, looked = self._favour(), self._looked(bgr)
         small = looked if looked.shape[1::-1] == self._video_size else \
             cv2.cvtColor(shrunk(bgr, self._video_size), cv2.COLOR_BGR2RGB)
-        sharper = 0  # bits a sharp key would have taken more
+        reference = self._view.reference_picture(params, seq, self._video_size)
         if self._encoder is None:
-            video, sharper = self._fitted_key(seq, small, FIRST_KEY_SHARE * self._window_bits,
-                                              FIRST_KEY_AIM * self._window_bits)
-        elif key and room < self._key_size:
-            video, sharper = self._fitted_key(seq, small, room - self._key_packing, room - self._key_packing)
-        else:
-            if key:  # a sharp key: sharp frames after it
-                self._soft = (0.0, seq)
-            blur, since = self._soft
-            blur *= 1 - (seq - since) / (SHARPEN * self._fps)
-            video = self._encoder.encode(cv2.GaussianBlur(small, (0, 0), blur) if blur > 0.25 else small, key)
+            self._encoder = VideoEncoder(self._video_size, *self._encoder_rate)
+        video = self._encoder.encode(small, reference, key)
         data = self._layer.make(seq, video, key, model, self._look.carry, lambda parts, still, before:
-                                choose_payload(parts, still, looked, before, favour=favour, shrink=self._shrink))
+                                choose_payload(parts, still, looked, before, favour=favour, shrink=self._shrink),
+                                reference)
         packets = [] if data is None else encoder.picture(seq, data)
         bits = 8 * stream_size(packets, self._sealed)
         if self._last_key is not None:  # the first key is the call's own: the window alone holds it
             self._size += (bits - self._size) / 4
             self._credit -= bits
         if key:
-            self._key_size = bits + sharper if self._last_key is None else (self._key_size + bits + sharper) / 2
-            self._key_packing = bits - 8 * len(video)
+            self._key_size = bits if self._last_key is None else (self._key_size + bits) / 2
         self._last_key = seq if key else self._last_key
         self._last_video = seq
         return packets

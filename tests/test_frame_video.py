@@ -6,10 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from facedeform.codec.render import frame_video
+from facedeform.codec.render import frame_video, vp9
 from facedeform.codec.render.frame_video import (
     BLOCK,
-    VideoDecoder,
     VideoEncoder,
     VideoLayer,
     blend,
@@ -26,6 +25,11 @@ from facedeform.codec.render.frame_video import (
 from facedeform.common.scheduling import REAL_TIME, _policies
 
 PICTURE = (128, 96)  # w, h
+
+
+def grey(size: tuple[int, int]) -> np.ndarray:
+    """The model's picture the tests' videos are coded from: flat grey at ``size`` (w, h)."""
+    return np.full((size[1], size[0], 3), 90, np.uint8)
 
 
 def frames(n: int, size=(64, 64)) -> list[np.ndarray]:
@@ -59,52 +63,92 @@ def test_blocks_cut_short_do_not_decode():
 
 def test_video_sizes_are_even_at_least_64_and_keep_the_shape():
     assert video_size((256, 256), 64) == (64, 64)
-    assert video_size((1920, 1080), 480) == (480, 270)
-    assert video_size((256, 144), 64) == (114, 64)  # the smaller side at SVT-AV1's least
+    assert video_size((1920, 1080), 480) == (480, 272)  # multiples of 8
+    assert video_size((256, 144), 64) == (112, 64)  # the smaller side at the least
     assert video_size((40, 40), 10) == (64, 64)
 
 
 def test_both_ends_of_a_video_hold_the_same_frames_and_blocks():
     sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
     encoder = VideoEncoder((64, 64), 20_000, 25)
-    model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
+    model = grey(PICTURE)
     for seq, frame in enumerate(frames(6)):
         def choose(parts, still, before, odd=seq % 2, moved=seq % 3 != 1):
             return (np.eye(*before.shape, dtype=bool) if odd else before), moved
 
-        data = sender.make(seq, encoder.encode(frame, key=seq == 0), seq == 0, model, None, choose)
-        assert receiver.take(seq, data)
+        video = encoder.encode(frame, grey((64, 64)), key=seq == 0)
+        data = sender.make(seq, video, seq == 0, model, None, choose, grey((64, 64)))
+        assert receiver.take(seq, data) and receiver.decode_due(seq, grey)
         np.testing.assert_array_equal(receiver.chosen, sender.chosen)
         np.testing.assert_array_equal(receiver.draw(seq, model), sender.draw(seq, model))
     assert sender.frame is not None and np.abs(sender.frame.astype(int) - frames(6)[-1]).mean() < 20
 
 
+def test_the_video_is_coded_from_the_model_s_picture():
+    """Each frame is coded from the model's picture of it as well as from the last frame: a frame the
+    model draws well costs a fraction of the same frame coded alone, and a receiver given another
+    picture than the sender's does not draw what the sender does."""
+    frame = frames(1, (64, 64))[0]
+    alone = VideoEncoder((64, 64), 20_000, 25).encode(frame, grey((64, 64)), key=True)
+    modelled = VideoEncoder((64, 64), 20_000, 25).encode(frame, frame, key=True)
+    assert len(modelled) < 0.5 * len(alone)
+    sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
+    keep = lambda parts, still, before: (before, True)  # noqa: E731
+    data = sender.make(0, modelled, True, grey(PICTURE), None, keep, frame)
+    assert receiver.take(0, data) and receiver.decode_due(0, lambda size: frame)
+    np.testing.assert_array_equal(receiver.frame, sender.frame)
+    assert np.abs(sender.frame.astype(int) - frame).mean() < 3
+    wrong = VideoLayer(PICTURE)
+    assert wrong.take(0, data) and wrong.decode_due(0, grey)
+    assert np.abs(wrong.frame.astype(int) - frame).mean() > 10
+
+
 def test_a_gap_in_the_counter_draws_the_model_alone_until_the_next_key():
     sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
     encoder = VideoEncoder((64, 64), 20_000, 25)
-    model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
+    model = grey(PICTURE)
     keep = lambda parts, still, before: (before, True)  # noqa: E731
-    payloads = [sender.make(seq, encoder.encode(f, key=seq in (0, 4)), seq in (0, 4), model, None, keep)
-                for seq, f in enumerate(frames(6))]
-    assert receiver.take(0, payloads[0]) and receiver.take(1, payloads[1])
+    payloads = [sender.make(seq, encoder.encode(f, grey((64, 64)), key=seq in (0, 4)), seq in (0, 4), model, None,
+                            keep, grey((64, 64))) for seq, f in enumerate(frames(6))]
+    assert receiver.take(0, payloads[0]) and receiver.decode_due(0, grey)
+    assert receiver.take(1, payloads[1]) and receiver.decode_due(1, grey)
     assert not receiver.take(3, payloads[3])  # 2 was lost
     np.testing.assert_array_equal(receiver.draw(1, model), sender.draw(1, model))  # a frame before it, drawn late
     np.testing.assert_array_equal(receiver.draw(3, model), model)
-    assert receiver.take(4, payloads[4]) and receiver.take(5, payloads[5])  # the key
+    assert receiver.take(4, payloads[4]) and receiver.decode_due(4, grey)  # the key
+    assert receiver.take(5, payloads[5]) and receiver.decode_due(5, grey)
     np.testing.assert_array_equal(receiver.draw(5, model), sender.draw(5, model))
+
+
+def test_a_payload_whose_frame_the_receiver_did_not_get_is_lost_until_the_next_key():
+    """The model's picture of a frame whose parameters were concealed is not the sender's: its payload
+    cannot be decoded as the sender did, nor those after it, until a key."""
+    sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
+    encoder = VideoEncoder((64, 64), 20_000, 25)
+    keep = lambda parts, still, before: (before, True)  # noqa: E731
+    payloads = [sender.make(seq, encoder.encode(f, grey((64, 64)), key=seq in (0, 3)), seq in (0, 3), grey(PICTURE),
+                            None, keep, grey((64, 64))) for seq, f in enumerate(frames(5))]
+    assert receiver.take(0, payloads[0]) and receiver.decode_due(0, grey)
+    assert receiver.take(1, payloads[1]) and not receiver.decode_due(1, None)
+    assert not receiver.take(2, payloads[2])
+    np.testing.assert_array_equal(receiver.draw(2, grey(PICTURE)), grey(PICTURE))
+    assert receiver.take(3, payloads[3]) and receiver.decode_due(3, grey)
+    np.testing.assert_array_equal(receiver.draw(3, grey(PICTURE)), sender.draw(3, grey(PICTURE)))
 
 
 def test_blocks_only_hand_blocks_to_the_model_over_the_held_frame():
     sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
     encoder = VideoEncoder((64, 64), 20_000, 25)
-    model = np.full((PICTURE[1], PICTURE[0], 3), 90, np.uint8)
+    model = grey(PICTURE)
     none = lambda parts, still, before: (np.zeros_like(before), True)  # noqa: E731
     every = lambda parts, still, before: (np.ones_like(before), True)  # noqa: E731
-    assert receiver.take(0, sender.make(0, encoder.encode(frames(1)[0], key=True), True, model, None, none))
+    key = encoder.encode(frames(1)[0], grey((64, 64)), key=True)
+    assert receiver.take(0, sender.make(0, key, True, model, None, none, grey((64, 64))))
+    assert receiver.decode_due(0, grey)
     assert sender.make(1, None, False, model, None, none) is None  # nothing changes: nothing to send
     data = sender.make(1, None, False, model, None, every)
     assert data is not None and len(data) <= 8  # a flags byte and the blocks: no video
-    assert receiver.take(1, data) and receiver.chosen.all()
+    assert receiver.take(1, data) and receiver.decode_due(1, grey) and receiver.chosen.all()
     np.testing.assert_array_equal(receiver.draw(1, model), model)  # every block the model's
 
 
@@ -112,14 +156,29 @@ def test_a_blocks_only_key_or_junk_after_the_blocks_is_refused():
     layer = VideoLayer(PICTURE)
     assert not layer.take(0, b"\x03\x00")
     assert not layer.take(0, b"")
-    assert not layer.take(0, b"\x01\x00" + b"\x12\x00not av1")
+    assert layer.take(0, b"\x01\x00" + b"\x00\x03not vp9") and not layer.decode_due(0, grey)
+
+
+def _header(bits: str) -> bytes:
+    """The bytes of a bit string, padded with zeros."""
+    bits += "0" * (-len(bits) % 8)
+    return bytes(int(bits[i:i + 8], 2) for i in range(0, len(bits), 8))
 
 
 def test_the_decoder_refuses_frames_larger_than_its_limit_and_junk():
-    large = VideoEncoder((128, 128), 20_000, 25).encode(np.zeros((128, 128, 3), np.uint8), key=True)
-    assert VideoDecoder((64, 64)).decode(large) is None
-    assert VideoDecoder((128, 128)).decode(large).shape == (128, 128, 3)
-    assert VideoDecoder((64, 64)).decode(b"\x00" * 40) is None
+    """Read from the frame's own header before libvpx allocates anything: a key, or a frame that says
+    a size of its own instead of a reference's, larger than the limit; and what is not a shown VP9 frame."""
+    large = VideoEncoder((128, 128), 20_000, 25).encode(np.zeros((128, 128, 3), np.uint8), grey((128, 128)), True)
+    grey_key = large[2:2 + int.from_bytes(large[:2], "big")]
+    assert vp9.frame_size(grey_key) == (128, 128)
+    assert vp9.Decoder((64, 64)).decode(grey_key) is None
+    assert vp9.Decoder((128, 128)).decode(grey_key).shape == (192, 128)  # I420 planes
+    assert vp9.Decoder((64, 64)).decode(b"\x00" * 40) is None
+    huge = _header("10" "00" "0" "1" "1" "0" "00" "00000001" + "0000" * 3 + "000" + f"{65535:016b}" * 2)
+    assert vp9.frame_size(huge) == (65536, 65536)
+    decoder = vp9.Decoder((128, 128))
+    assert decoder.decode(grey_key) is not None and decoder.decode(huge + bytes(64)) is None
+    assert vp9.frame_size(large[2 + len(grey_key):]) == (0, 0)  # an ordinary frame: a reference's size
 
 
 def test_blend_draws_the_model_in_its_blocks_and_the_video_elsewhere():
@@ -240,9 +299,9 @@ def test_both_ends_draw_a_still_payload_s_model_where_it_is():
     encoder = VideoEncoder((64, 64), 20_000, 25)
     model, video = textured_disc(128, 0), shrunk(textured_disc(128, 3), (64, 64))
     for seq, moved in enumerate((True, False, True, False)):
-        data = sender.make(seq, encoder.encode(video, key=seq == 0), seq == 0, model, None,
-                           lambda parts, still, before, moved=moved: (np.ones_like(before), moved))
-        assert receiver.take(seq, data)
+        data = sender.make(seq, encoder.encode(video, grey((64, 64)), key=seq == 0), seq == 0, model, None,
+                           lambda parts, still, before, moved=moved: (np.ones_like(before), moved), grey((64, 64)))
+        assert receiver.take(seq, data) and receiver.decode_due(seq, grey)
         drawn = receiver.draw(seq, model)
         np.testing.assert_array_equal(drawn, sender.draw(seq, model))
         assert np.array_equal(drawn, model) != moved  # moved: onto the video's disc, 3 pixels right
@@ -290,18 +349,14 @@ def real_time_threads() -> set[int]:
 
 
 @pytest.mark.skipif(not os.path.isdir("/proc/self/task") or not REAL_TIME, reason="Linux's scheduling policies")
-def test_the_encoder_leaves_no_thread_real_time():
-    """Opened as root, SVT-AV1 makes the caller's thread and its own SCHED_FIFO 99; a spinning child
-    process (chromium, in the viewer's test) inherited it and starved the machine."""
+def test_the_still_encoder_leaves_no_thread_real_time():
+    """Opened as root, SVT-AV1 (the face file's still pictures) makes the caller's thread and its own
+    SCHED_FIFO 99; a spinning child process (chromium, in the viewer's test) inherited it and starved
+    the machine."""
     before = real_time_threads()
-    encoder = VideoEncoder((64, 64), 4_000, 25)
-    encoder.encode(np.zeros((64, 64, 3), np.uint8), key=True)
     encode_still(np.zeros((64, 64, 3), np.uint8), 30)
-    try:
-        assert real_time_threads() <= before
-        assert os.sched_getscheduler(0) not in REAL_TIME
-    finally:
-        encoder.close()
+    assert real_time_threads() <= before
+    assert os.sched_getscheduler(0) not in REAL_TIME
 
 
 def test_a_video_of_the_picture_s_size_needs_no_flow(monkeypatch):

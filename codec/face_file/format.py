@@ -105,7 +105,7 @@ from facedeform.codec.model.face_model import (
     normalise,
 )
 from facedeform.codec.model.motion_basis import MOST_STEPS, OVER, MotionBasis
-from facedeform.codec.render.frame_video import VideoDecoder, encode_still, even
+from facedeform.codec.render.frame_video import StillDecoder, encode_still, even
 from facedeform.codec.render.picture import RINGS, Placement, outer_loop
 from facedeform.common.errors import InputError
 from facedeform.common.keys import derive
@@ -565,7 +565,7 @@ def _decode_image(data: bytes, size: tuple[int, int], what: str, bad) -> np.ndar
     """The image (AV1, or WebP, JPEG or PNG), decoded only once its header declares the ``size`` the
     face model does (AV1: within as many pixels, checked by the decoder before it allocates them)."""
     if data[:1] == _AV1_SEQUENCE:  # an odd side coded one longer (encode_still)
-        image = VideoDecoder(even(size)).decode_still(data)
+        image = StillDecoder(even(size)).decode_still(data)
         if image is not None and image.shape[1::-1] == even(size):
             return np.ascontiguousarray(image[:size[1], :size[0]])
     else:

@@ -1,5 +1,5 @@
-"""The picture layer: the real frame, scaled down, as a video coded by SVT-AV1 and decoded by dav1d
-(both through PyAV), drawn with the model's picture block by block.
+"""The picture layer: the real frame, scaled down, as a video coded by VP9 from the model's picture
+(libvpx, codec/render/vp9.py), drawn with the model's picture block by block.
 
 Why a video codec of the frame itself, not a residual over the model's picture: on the moving
 dev clips' 256x256 crops, an earlier layer that coded what the model missed as WebP residuals
@@ -7,17 +7,21 @@ dev clips' 256x256 crops, an earlier layer that coded what the model missed as W
 the model's residual as a video did worse than AV1 of the frame (the residual's edges move where
 the model is off, which costs more than the frame), and AV1 of the frame at 64x64 gave 26.1 dB at
 7.9 kbit/s: its motion search follows a turning head and a leaning body that the model cannot.
-The model keeps what a picture that small cannot show: where the sender finds the model's
-picture nearer the frame (a still face's detail, most of a still clip), that block is the model's,
-moved by a pixel or two onto where the video shows it; elsewhere the video's, sharpened by the
-model's detail where the two agree (:func:`blend`).
-No library coder takes a rendered frame as its prediction; choosing per block is how the
-model gets into the picture. The numbers are in docs/picture_layer.md.
+Why VP9 and not AV1 (SVT-AV1, until stream version 17): both ends hold the model's picture of every
+frame, and libvpx takes a picture of the caller's into a reference slot, so each video frame is
+predicted from the model's picture as well as from the last video frame (:class:`VideoEncoder`):
+the model's detail costs nothing where it is right, and a call's first key costs what the model
+misses instead of a picture. The model also keeps what a picture that small cannot show: where the
+sender finds the model's picture nearer the frame (a still face's detail, most of a still clip),
+that block is the model's, moved by a pixel or two onto where the video shows it; elsewhere the
+video's, sharpened by the model's detail where the two agree (:func:`blend`). The numbers are in
+docs/picture_layer.md.
 
 A layer packet's payload (the picture packet of protocol/framing.py)::
 
     flags (1 byte: bit 0 key, bit 1 blocks only, bit 2 the model's blocks not moved, bits 3-7 a counter mod 32)
-    | the model's blocks (arithmetic code) | AV1 temporal unit without its temporal delimiter
+    | the model's blocks (arithmetic code) | a VP9 frame (a key: the grey key frame's length, 2 bytes,
+      the grey key frame, the frame)
 
 Between video frames the last one is held, carried by the model's motion (the view's ``carry``,
 given to :meth:`VideoLayer.draw`). A payload of blocks only (no video) lets the sender hand a
@@ -25,8 +29,8 @@ block back to the model between video frames, when the carried frame no longer m
 
 The blocks are coded as changes from the last packet's (from none at a key, where a receiver can
 start). Both ends run the same :class:`VideoLayer` on the same payloads, so they draw the same
-pixels; a receiver that missed a packet (the counter jumps) draws the model's picture alone until
-the next key.
+pixels; a receiver that missed a packet (the counter jumps), or the parameters of a payload's frame
+(its model's picture is then not the sender's), draws the model's picture alone until the next key.
 """
 
 import os
@@ -40,6 +44,7 @@ import cv2
 import numpy as np
 from numba import njit
 
+from facedeform.codec.render import vp9
 from facedeform.common.scheduling import kept_scheduling
 from facedeform.protocol.arith import AdaptiveBit, decode_run, encode_run
 
@@ -52,27 +57,6 @@ BLOCK = 32  # pixels of the picture per model-or-video choice (16: four to seven
 #: size, blurred as much it lost 0.015 on average (pcavs_Pose_Source 0.13), so it keeps half a block
 #: there (docs/picture_layer.md). Half as much lost 0.09 dB at 4 kbit/s.
 SEAM = 2.0
-#: SVT-AV1's speed preset: in its real-time mode 6 is the slowest (4 gives the same bytes). Against
-#: 10, on the nine dev clips' crops at 4, 10 and 30 kbit/s, the whole picture gained 0.19, 0.28 and
-#: 0.72 dB on average (at 10 and 30 on every clip), at the same rates; at 1280x720 and 60 kbit/s
-#: 0.44 dB (worst frame 31.9 -> 35.9), at 1920x1080 0.13, where the encoder's 7 ms a frame became 15
-#: (docs/picture_layer.md).
-PRESET = "6"
-#: SVT-AV1's real-time mode: without it low-delay CBR forces two hierarchical levels, every fourth
-#: frame several times the others' bits (sadtalker_WDA_KatieHill at 30 kbit/s: 500-1000 bytes
-#: against 40-150), and the layer, which sends a frame only when the rate has room, skipped the
-#: frames after each. With it the frames are even, and on seven dev clips the whole picture gained
-#: 0.03-0.46 dB at 4 kbit/s, 0.15-0.42 at 10 and 0.37-0.63 at 30 (docs/picture_layer.md).
-RTC = 1
-#: SVT-AV1's finest quantiser for a video of at most BOUNDED_RATE bit/s. At such rates its rate control
-#: in the real-time mode now and then gives one frame ten times its share (the bundled clip at 4
-#: kbit/s, a 90x72 video: 675 bytes where 54 were planned, its first 2 seconds 1.43 times the rate;
-#: at 8 kbit/s over udp://, 180x144: 3,744 bits where about 300 were). Bounded, the nine dev crops
-#: drew the same pictures at 4 kbit/s (+0.004 dB on average) and at 10 -0.02 dB on average (-0.07 to
-#: +0.09 a clip), and the bundled clip kept 0.97-1.00 of the rate at 4-10 kbit/s. Faster videos keep
-#: SVT-AV1's own: at 30 kbit/s the bound cost lipnet_bbaf2n's crop 0.81 dB, the bundled clip 1.1 dB
-#: (13 kbit/s spent of 30), where a picture pays for finer quantisers (docs/picture_layer.md).
-BOUNDED_RATE, BOUNDED_MIN_QP = 10_000, 40
 #: SVT-AV1's preset for a still picture. On one 256x256 face's picture at CRF 25 (PyAV's conversion),
 #: preset 2 took 2 % fewer bytes than 4 and gave 0.2 dB more, in 0.25 s against 0.1 (not tried at
 #: 1920x1080, where enrolment would wait for it); preset 6 took a quarter more bytes.
@@ -82,61 +66,48 @@ _CHANGE = (20, 1)  # starting counts of a block's change: most blocks keep their
 #: A payload's flags: a key, blocks only, the model's blocks drawn where the model is (not moved onto the
 #: video), and a counter in the bits above (COUNTER values) by which a receiver knows it missed one.
 KEY, BLOCKS_ONLY, STILL, COUNTER = 1, 2, 4, 32
-SMALLEST_SIDE = 64  # pixels
+SMALLEST_SIDE = 64  # pixels: the smallest video the layer codes
 HELD = 64  # payloads held for frames not yet drawn: more than a receiver's buffer holds
 
 
 def video_size(picture_size: tuple[int, int], side: float) -> tuple[int, int]:
     """The video's (w, h) for a picture of ``picture_size`` whose larger side becomes ``side``
-    pixels: even, as 4:2:0 needs, at least SMALLEST_SIDE (SVT-AV1's least), at most the picture's."""
-    w, h = picture_size
-    scale = min(1.0, max(side / max(w, h), SMALLEST_SIDE / min(w, h)))
-    return max(SMALLEST_SIDE, 2 * round(w * scale / 2)), max(SMALLEST_SIDE, 2 * round(h * scale / 2))
+    pixels: multiples of 8 (libvpx takes a reference only of its frames' size rounded up to 8), at
+    least SMALLEST_SIDE, at most the picture's (rounded down to 8) where it is larger."""
+    scale = min(1.0, max(side / max(picture_size), SMALLEST_SIDE / min(picture_size)))
+    w, h = (max(SMALLEST_SIDE, min(8 * (n // 8), 8 * round(n * scale / 8))) for n in picture_size)
+    return w, h
 
 
 class VideoEncoder:
-    """SVT-AV1 in its low-delay real-time mode: each frame in gives its packet at once (no lookahead), at
-    ``bitrate`` bit/s over frames ``fps`` a second (the rate the encoder's own control aims at)."""
+    """The layer's video: VP9 in real time (codec/render/vp9.py) at ``bitrate`` bit/s over frames ``fps`` a
+    second (the rate libvpx's own control aims at), each frame coded from the last one and from the
+    model's picture of its own frame, which both ends draw (:meth:`encode`)."""
 
     def __init__(self, size: tuple[int, int], bitrate: float, fps: float) -> None:
-        import av
+        self._vp9 = vp9.Encoder(size, bitrate, fps)
+        self.size = size
 
-        os.environ.setdefault("SVT_LOG", "1")  # errors only: SVT-AV1 prints its settings otherwise
-        codec = av.CodecContext.create("libsvtav1", "w")
-        codec.width, codec.height = size
-        codec.pix_fmt = "yuv420p"
-        rate = Fraction(fps).limit_denominator(1001)
-        codec.time_base, codec.framerate = 1 / rate, rate
-        codec.bit_rate = max(1000, int(bitrate))
-        # hierarchical-levels=0: every frame at one level. By default the real-time mode still gave every
-        # fourth frame three to five times the others' bits, which the layer cannot foresee when it asks
-        # whether a frame fits the 2-second window (tpsmm_driving at 4 kbit/s: 2056 bits where about 500
-        # were planned, its first 2 s 1.107 times the rate); flat, the largest window on the nine dev
-        # clips was 1.073, for about 0.1 dB less at 10 kbit/s (docs/picture_layer.md).
-        floor = f":min-qp={BOUNDED_MIN_QP}" if bitrate <= BOUNDED_RATE else ""
-        codec.options = {"preset": PRESET, "svtav1-params":
-                         f"pred-struct=1:keyint=0:scd=0:lookahead=0:rc=2:rtc={RTC}:hierarchical-levels=0{floor}"}
-        with kept_scheduling():  # as root, SVT-AV1 makes its threads and the caller's real-time
-            codec.open()
-        self._codec, self._count, self.size, self._closed = codec, 0, size, False
-
-    def encode(self, rgb: np.ndarray, key: bool = False) -> bytes:
-        """The temporal unit of ``rgb`` ((h, w, 3) uint8 at the video's size), a key if asked."""
-        import av
-
-        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb24")
-        frame.pts = self._count
-        if key:
-            frame.pict_type = av.video.frame.PictureType.I
-        self._count += 1
-        return _undelimited(b"".join(bytes(p) for p in self._codec.encode(frame)))
+    def encode(self, rgb: np.ndarray, model: np.ndarray, key: bool = False) -> bytes:
+        """The coded frame of ``rgb`` ((h, w, 3) uint8 at the video's size), ``model`` (the same size:
+        the model's picture of the frame, :meth:`receiver.face_view.PictureView.reference_picture`) in
+        its golden reference. A key is a flat grey key frame (a dozen bytes: VP9 starts from a key) with
+        every reference then set to ``model``, and the frame coded from them, behind the key's length
+        (2 bytes): a call's first frame costs what the model misses, not a picture."""
+        planes, reference = to_yuv(rgb), to_yuv(model)
+        if not key:
+            self._vp9.set_reference(vp9.GOLDEN, reference)
+            return self._vp9.encode(planes, keep_golden=True)
+        grey = self._vp9.encode(np.full_like(planes, 128), key=True)
+        for slot in (vp9.LAST, vp9.GOLDEN, vp9.ALTREF):
+            self._vp9.set_reference(slot, reference)
+        # the frame after a key refreshes the golden slot, as libvpx plans it to: kept there, the model's
+        # picture cost tpsmm_driving's crop 1.0 dB at 4 kbit/s and liveportrait_d11 0.4 (cause not traced)
+        return len(grey).to_bytes(2, "big") + grey + self._vp9.encode(planes)
 
     def close(self) -> None:
-        """Ends the encoder, once: its last packets, if any, are not needed (each frame's came at once).
-        An encoder let go without it prints an error when it is collected."""
-        if self._codec.is_open and not self._closed:
-            self._closed = True
-            self._codec.encode(None)
+        """Ends the encoder, once."""
+        self._vp9.close()
 
 
 def to_yuv(rgb: np.ndarray) -> np.ndarray:
@@ -177,7 +148,7 @@ def even(size: tuple[int, int]) -> tuple[int, int]:
 def encode_still(rgb: np.ndarray, crf: int) -> bytes:
     """``rgb`` ((h, w, 3) uint8) as one AV1 key frame at SVT-AV1's ``crf`` (0-63, finer lower), a
     temporal unit without its temporal delimiter as :meth:`VideoEncoder.encode` gives: a face file's
-    pictures (codec/face_file/format.py), read back by :class:`VideoDecoder`. An odd side is coded
+    pictures (codec/face_file/format.py), read back by :class:`StillDecoder`. An odd side is coded
     one pixel longer, its last row or column repeated (:func:`even`)."""
     import av
 
@@ -200,7 +171,7 @@ def _undelimited(data: bytes) -> bytes:
     return data[len(_TEMPORAL_DELIMITER):] if data.startswith(_TEMPORAL_DELIMITER) else data
 
 
-class VideoDecoder:
+class StillDecoder:
     """dav1d, one frame in, one out, refusing a frame of more pixels than ``largest`` (w, h) before
     it is allocated, and one wider or taller after."""
 
@@ -210,12 +181,6 @@ class VideoDecoder:
         self._codec = cast("av.VideoCodecContext", av.CodecContext.create("libdav1d", "r"))
         self._codec.options = {"max_frame_delay": "1", "max_pixels": str(largest[0] * largest[1])}
         self.largest = largest
-
-    def decode(self, data: bytes) -> np.ndarray | None:
-        """The (h, w, 3) uint8 RGB frame of a temporal unit of :meth:`VideoEncoder.encode`; None
-        if it does not decode to one frame within ``largest``."""
-        frame = self._frame(data)
-        return None if frame is None else frame.to_ndarray(format="rgb24")
 
     def decode_still(self, data: bytes) -> np.ndarray | None:
         """The (h, w, 3) uint8 RGB picture of :func:`encode_still`'s bytes; None unless they decode
@@ -529,17 +494,21 @@ def _carried_parts(model: np.ndarray, frame: np.ndarray, since: int,
 
 class VideoLayer:
     """What both ends hold of the layer: the video's decoder, its last frame and the model's
-    blocks. The receiver reads payloads with :meth:`take`, the sender makes them with
-    :meth:`make`; both draw with :meth:`draw`. A payload comes before its frame is drawn and
-    holds from that frame on; frames before it, drawn later (a receiver's buffer), are drawn as
-    before it. A held video frame is drawn as ``carry`` (given to :meth:`draw`) moves it from its
-    own frame to the one drawn: the face's motion since, which the parameters carry."""
+    blocks. The receiver reads payloads with :meth:`take` and decodes each with :meth:`decode_due`
+    once its frame's parameters are known (a payload goes before them; its video is coded from the
+    model's picture of its frame); the sender makes them with :meth:`make`; both draw with
+    :meth:`draw`. A payload holds from its frame on; frames before it, drawn later (a receiver's
+    buffer), are drawn as before it. A held video frame is drawn as ``carry`` (given to :meth:`draw`)
+    moves it from its own frame to the one drawn: the face's motion since, which the parameters carry."""
 
     def __init__(self, picture_size: tuple[int, int]) -> None:
         self.picture_size = picture_size
-        self._decoder: VideoDecoder | None = None
+        self._decoder: vp9.Decoder | None = None
         self._none = np.zeros(blocks_of(picture_size), dtype=bool)  # no block the model's
         self._counter: int | None = None  # the last payload's; None: waiting for a key
+        #: payloads taken, not yet decoded: (frame, key, the video or None for blocks only, chosen blocks,
+        #: whether the model's blocks are moved)
+        self._taken: deque[tuple[int, bool, bytes | None, np.ndarray, bool]] = deque(maxlen=HELD)
         #: (first frame, the video's frame or None for the model's picture alone, chosen blocks,
         #: the frame the video's frame shows, whether the model's blocks are moved onto it)
         self._states: deque[tuple[int, np.ndarray | None, np.ndarray, int, bool]] = deque(maxlen=HELD)
@@ -553,25 +522,49 @@ class VideoLayer:
         move = not payload[0] & STILL
         if not key and (self._counter is None or counter != (self._counter + 1) % COUNTER):
             return self._lost(seq)
-        blocks = decode_blocks(self._none if key else self.chosen, payload[1:])
-        if blocks is None or (only and (key or len(payload) != 1 + blocks[1] or self.frame is None)):
+        before = self._none if key else (self._taken[-1][3] if self._taken else self.chosen)
+        blocks = decode_blocks(before, payload[1:])
+        if blocks is None or (only and (key or len(payload) != 1 + blocks[1])):
             return self._lost(seq)
-        frame = self.frame if only else self._decode(payload[1 + blocks[1]:], key)
-        if frame is None:
-            return self._lost(seq)
-        self._hold(seq, frame, blocks[0], counter, self._since if only else seq, move)
+        self._counter = counter
+        self._taken.append((seq, key, None if only else payload[1 + blocks[1]:], blocks[0], move))
         return True
+
+    def decode_due(self, seq: int, reference: Callable[[tuple[int, int]], np.ndarray] | None) -> bool:
+        """Decode the payloads taken for frame ``seq`` (those of earlier frames still waiting were never
+        due: lost), ``reference(the video's size)`` giving the model's picture of frame ``seq`` at that
+        size (None: the receiver does not have this frame's parameters, so cannot draw it as the sender
+        did: lost). False if one was lost, after which the model's picture is drawn alone until the next key."""
+        kept = True
+        while self._taken and self._taken[0][0] <= seq:
+            first, key, video, chosen, move = self._taken.popleft()
+            frame = None
+            if first == seq and reference is not None:
+                frame = self.frame if video is None else self._decode(video, key, reference)
+            if frame is None:
+                kept = self._lost(first)
+                continue
+            self._hold(first, frame, chosen, self._since if video is None else first, move)
+        return kept
 
     def make(self, seq: int, video: bytes | None, key: bool, model: np.ndarray,
              carry: Callable[[np.ndarray, int], np.ndarray] | None,
-             choose: Callable[[VideoParts, np.ndarray, np.ndarray], tuple[np.ndarray, bool]]) -> bytes | None:
-        """The payload of frame ``seq`` for the sender's temporal unit ``video`` (None: blocks only,
-        the last frame held), taken as :meth:`take` takes it; its blocks and whether the model's picture is
-        moved in them are ``choose(the video's parts over the model's picture ``model``, ``model``, the
-        last choice)`` (:func:`choose_payload`), the decoded frame carried to ``seq`` as :meth:`draw`
-        carries it. None (nothing to send) for blocks only that change nothing."""
+             choose: Callable[[VideoParts, np.ndarray, np.ndarray], tuple[np.ndarray, bool]],
+             reference: np.ndarray | None = None) -> bytes | None:
+        """The payload of frame ``seq`` for the sender's coded frame ``video`` (None: blocks only, the
+        last frame held) coded from ``reference`` (the model's picture at the video's size), taken as
+        :meth:`take` and :meth:`decode_due` take it; its blocks and whether the model's picture is moved
+        in them are ``choose(the video's parts over the model's picture ``model``, ``model``, the last
+        choice)`` (:func:`choose_payload`), the decoded frame carried to ``seq`` as :meth:`draw` carries
+        it. None (nothing to send) for blocks only that change nothing."""
         counter = 0 if self._counter is None else (self._counter + 1) % COUNTER
-        frame = self.frame if video is None else self._decode(video, key)
+        if video is None:
+            frame = self.frame
+        elif reference is None:
+            raise ValueError("a video frame needs the model's picture it was coded from")
+        else:
+            given = reference
+            frame = self._decode(video, key, lambda size: given)
         if frame is None:
             raise ValueError("no frame to hold" if video is None else "the layer's own video did not decode")
         since = self._since if video is None else seq
@@ -581,7 +574,8 @@ class VideoLayer:
         start = self._none if key else self.chosen
         flags = int(key) | (BLOCKS_ONLY if video is None else 0) | (0 if move else STILL) | counter << 3
         data = bytes([flags]) + encode_blocks(start, chosen) + (video or b"")
-        self._hold(seq, frame, chosen, counter, since, move)
+        self._counter = counter
+        self._hold(seq, frame, chosen, since, move)
         return data
 
     @property
@@ -615,17 +609,30 @@ class VideoLayer:
             return model
         return blend(_carried_parts(model, frame, since, carry, move), chosen, self.picture_size, frame.shape[1::-1])
 
-    def _decode(self, video: bytes, key: bool) -> np.ndarray | None:
-        if key or self._decoder is None:
-            self._decoder = VideoDecoder(video_size(self.picture_size, max(self.picture_size)))
-        return self._decoder.decode(video)
+    def _decode(self, video: bytes, key: bool, reference: Callable[[tuple[int, int]], np.ndarray]
+                ) -> np.ndarray | None:
+        """The (h, w, 3) RGB frame of a payload's ``video`` (:meth:`VideoEncoder.encode`); None if it does
+        not decode (or no key since the decoder was lost)."""
+        if key:
+            length = int.from_bytes(video[:2], "big")
+            self._decoder = vp9.Decoder(video_size(self.picture_size, max(self.picture_size)))
+            if len(video) < 2 + length or self._decoder.decode(video[2:2 + length]) is None:
+                return None
+            video = video[2 + length:]
+        if self._decoder is None or self._decoder.size is None:
+            return None
+        model = to_yuv(reference(self._decoder.size))
+        slots = (vp9.LAST, vp9.GOLDEN, vp9.ALTREF) if key else (vp9.GOLDEN,)
+        if not all(self._decoder.set_reference(slot, model) for slot in slots):
+            return None
+        planes = self._decoder.decode(video)
+        return None if planes is None else from_yuv(planes, self._decoder.size)
 
-    def _hold(self, seq: int, frame: np.ndarray | None, chosen: np.ndarray, counter: int | None, since: int,
-              move: bool = True) -> None:
-        self._counter = counter
+    def _hold(self, seq: int, frame: np.ndarray | None, chosen: np.ndarray, since: int, move: bool = True) -> None:
         self._states.append((seq, frame, chosen, since, move))
 
     def _lost(self, seq: int) -> bool:
-        self._decoder = None
-        self._hold(seq, None, self._none, None, seq)
+        self._decoder, self._counter = None, None
+        self._taken.clear()
+        self._hold(seq, None, self._none, seq)
         return False
