@@ -5,8 +5,8 @@ every frame, bit for bit, and libvpx lets a caller put a picture of its own into
 of its encoder and of its decoder (``VP8_SET_REFERENCE``), so each video frame is coded from the
 model's picture as well as from the last video frame. SVT-AV1 and dav1d have no such call, and
 PyAV exposes no codec controls at all, hence ctypes. On the dev clips' 256x256 crops (a 128x128
-video every 6th frame at the layer's rate) the frames coded so came out 1.0-3.8 dB above SVT-AV1's
-at the same bits, and a call's first frame costs 50-240 bytes instead of 200-550: it is coded from
+video every 6th frame) the frames coded so came out 1.0-3.8 dB above SVT-AV1's at 2.3 kbit/s and
+0.6-3.5 at 7, and a call's first frame costs 50-240 bytes instead of 200-550: it is coded from
 the model's picture after a flat grey key of a dozen bytes (docs/picture_layer.md).
 
 Only what the layer needs is bound: one-pass CBR in real time without lag, keys on request, the
@@ -30,7 +30,10 @@ _FORCE_KEY, _KEEP_GOLDEN = 1, 1 << 22  # VPX_EFLAG_FORCE_KF, VP8_EFLAG_NO_UPD_GF
 _SET_REFERENCE, _CPU_USED = 1, 13  # VP8_SET_REFERENCE, VP8E_SET_CPUUSED
 _I420, _REALTIME = 0x102, 1  # VPX_IMG_FMT_I420, VPX_DL_REALTIME
 _ENCODER_ABI, _DECODER_ABI = 39, 12  # libvpx 1.16's VPX_ENCODER_ABI_VERSION, VPX_DECODER_ABI_VERSION
-#: libvpx's speed in real time (5-9: faster, more bytes for the same picture).
+#: libvpx's speed in real time. 3 (its slower search) gained the nine dev crops 0.32 dB at 4 kbit/s and
+#: 0.35 at 10 (a 128x128 video), but its frames overran their share further: the costliest 2-second
+#: window at 4 kbit/s 1.173 of the rate (pcavs_Pose_Source), past the 1.10 allowed; it would also have
+#: slowed the sender at 640x512 and 60 kbit/s from 33 frames/s to 22. 7: -0.24 and -0.20 dB.
 SPEED = 5
 #: libvpx's rate control counts in whole kbit/s: the encoder is told a clock this many times faster
 #: and a rate this many times higher, the same bits a frame, so that 2.3 kbit/s is not 2.
