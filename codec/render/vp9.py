@@ -33,7 +33,8 @@ _ENCODER_ABI, _DECODER_ABI = 39, 12  # libvpx 1.16's VPX_ENCODER_ABI_VERSION, VP
 #: libvpx's speed in real time. 3 (its slower search) gained the nine dev crops 0.32 dB at 4 kbit/s and
 #: 0.35 at 10 (a 128x128 video), but its frames overran their share further: the costliest 2-second
 #: window at 4 kbit/s 1.173 of the rate (pcavs_Pose_Source), past the 1.10 allowed; it would also have
-#: slowed the sender at 640x512 and 60 kbit/s from 33 frames/s to 22. 7: -0.24 and -0.20 dB.
+#: slowed the sender at 640x512 and 60 kbit/s from 33 frames/s to 22. 4: +0.03 and -0.06 dB (costliest
+#: window 1.064); 7: -0.24 and -0.20.
 SPEED = 5
 #: libvpx's rate control counts in whole kbit/s: the encoder is told a clock this many times faster
 #: and a rate this many times higher, the same bits a frame, so that 2.3 kbit/s is not 2.
