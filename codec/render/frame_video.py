@@ -99,7 +99,7 @@ class VideoEncoder:
             self._vp9.set_reference(vp9.GOLDEN, reference)
             return self._vp9.encode(planes, keep_golden=True)
         grey = self._vp9.encode(np.full_like(planes, 128), key=True)
-        for slot in (vp9.LAST, vp9.GOLDEN, vp9.ALTREF):
+        for slot in vp9.SLOTS:
             self._vp9.set_reference(slot, reference)
         # the frame after a key refreshes the golden slot, as libvpx plans it to: kept there, the model's
         # picture cost tpsmm_driving's crop 1.0 dB at 4 kbit/s and liveportrait_d11 0.4 (cause not traced)
@@ -622,7 +622,7 @@ class VideoLayer:
         if self._decoder is None or self._decoder.size is None:
             return None
         model = to_yuv(reference(self._decoder.size))
-        slots = (vp9.LAST, vp9.GOLDEN, vp9.ALTREF) if key else (vp9.GOLDEN,)
+        slots = vp9.SLOTS if key else (vp9.GOLDEN,)
         if not all(self._decoder.set_reference(slot, model) for slot in slots):
             return None
         planes = self._decoder.decode(video)

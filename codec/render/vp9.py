@@ -26,6 +26,7 @@ from facedeform.common.errors import FdError
 
 #: Slots of libvpx's references (vpx_ref_frame_type_t) and its per-frame encoding flags.
 LAST, GOLDEN, ALTREF = 1, 2, 4
+SLOTS = (LAST, GOLDEN, ALTREF)  # all three: what a key leaves holding the model's picture
 _FORCE_KEY, _KEEP_GOLDEN = 1, 1 << 22  # VPX_EFLAG_FORCE_KF, VP8_EFLAG_NO_UPD_GF
 _SET_REFERENCE, _CPU_USED = 1, 13  # VP8_SET_REFERENCE, VP8E_SET_CPUUSED
 _I420, _REALTIME = 0x102, 1  # VPX_IMG_FMT_I420, VPX_DL_REALTIME
@@ -159,7 +160,8 @@ class _Codec:
 
 
 class Encoder(_Codec):
-    """VP9 in real time at ``bitrate`` bit/s over ``fps`` frames a second, of (w, h) ``size`` (even)."""
+    """VP9 in real time at ``bitrate`` bit/s over ``fps`` frames a second, of (w, h) ``size`` (multiples
+    of 8, :func:`frame_video.video_size`)."""
 
     def __init__(self, size: tuple[int, int], bitrate: float, fps: float) -> None:
         lib, interface, _ = _library()
@@ -174,10 +176,12 @@ class Encoder(_Codec):
             config[_CONFIG[name][0]] = value
         config[7], config[8] = 1000, scale * _CLOCK
         super().__init__()
-        if lib.vpx_codec_enc_init_ver(self._context, interface, config, 0, _ENCODER_ABI) != 0 or \
-                lib.vpx_codec_control_(self._context, _CPU_USED, ctypes.c_int(SPEED)) != 0:
+        if lib.vpx_codec_enc_init_ver(self._context, interface, config, 0, _ENCODER_ABI) != 0:
             raise Unavailable("libvpx's VP9 encoder did not open")
-        self.size, self._count, self._open = size, 0, True
+        self._open = True  # destroyed from here on, if the speed is refused too
+        if lib.vpx_codec_control_(self._context, _CPU_USED, ctypes.c_int(SPEED)) != 0:
+            raise Unavailable("libvpx's VP9 encoder refused its speed")
+        self.size, self._count = size, 0
 
     def set_reference(self, slot: int, planes: np.ndarray) -> None:
         """Puts ``planes`` (I420 of the encoder's size) into reference ``slot`` (LAST, GOLDEN, ALTREF)."""
@@ -199,6 +203,7 @@ class Encoder(_Codec):
             if ctypes.c_int.from_address(packet).value == 0 and buffer:
                 out += ctypes.string_at(buffer, ctypes.c_size_t.from_address(packet + 16).value)
         return out
+
 
 class Decoder(_Codec):
     """VP9 frames of at most ``largest`` (w, h), each checked before libvpx sees it (:func:`frame_size`)."""
