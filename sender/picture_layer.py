@@ -290,6 +290,8 @@ class PictureLayer:
         if self._encoder is None:
             self._encoder = VideoEncoder(self._video_size, *self._encoder_rate)
         video = self._encoder.encode(small, reference, key)
+        if not video:  # dropped by libvpx: the next frame is tried instead
+            return []
         data = self._layer.make(seq, video, key, model, self._look.carry, lambda parts, still, before:
                                 choose_payload(parts, still, looked, before, favour=favour, shrink=self._shrink),
                                 reference)

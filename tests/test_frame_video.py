@@ -103,6 +103,40 @@ def test_the_video_is_coded_from_the_model_s_picture():
     assert np.abs(wrong.frame.astype(int) - frame).mean() > 10
 
 
+def test_a_frame_that_would_overrun_the_buffer_is_dropped_and_the_next_ones_still_decode():
+    """Noise after a still picture at 3 kbit/s is dropped once coded (b""); the frames after it decode
+    at a receiver that never saw it, each near its own frame (the encoder went on as without it)."""
+    still = frames(1, (64, 64))[0]
+    noise = np.random.default_rng(1).integers(0, 256, still.shape, dtype=np.uint8)
+    encoder = VideoEncoder((64, 64), 3_000, 4)
+    sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
+    keep = lambda parts, picture, before: (before, True)  # noqa: E731
+    sent = []
+    for seq, frame in enumerate([still] * 4 + [noise] + [still] * 2):
+        video = encoder.encode(frame, still, key=seq == 0)
+        if not video:
+            continue
+        sent.append(seq)
+        data = sender.make(seq, video, seq == 0, grey(PICTURE), None, keep, still)
+        assert receiver.take(seq, data) and receiver.decode_due(seq, lambda size: still)
+        np.testing.assert_array_equal(receiver.frame, sender.frame)
+        assert np.abs(receiver.frame.astype(int) - frame).mean() < 3
+    assert sent == [0, 1, 2, 3, 5, 6]
+
+
+def test_the_frames_after_a_key_or_a_drop_are_never_dropped():
+    """CALM frames after a key, and after a dropped frame, are kept however much they overrun: libvpx
+    learns its frames' sizes only from those it keeps (else it drops every other frame)."""
+    still = frames(1, (64, 64))[0]
+    rng = np.random.default_rng(2)
+    encoder = VideoEncoder((64, 64), 3_000, 4)
+    kept = [bool(encoder.encode(rng.integers(0, 256, still.shape, dtype=np.uint8), still, key=i == 0))
+            for i in range(12)]
+    drops = [i for i, k in enumerate(kept) if not k]
+    assert drops and drops[0] > frame_video.CALM
+    assert all(all(kept[i + 1:i + 1 + frame_video.CALM]) for i in drops)
+
+
 def test_a_gap_in_the_counter_draws_the_model_alone_until_the_next_key():
     sender, receiver = VideoLayer(PICTURE), VideoLayer(PICTURE)
     encoder = VideoEncoder((64, 64), 20_000, 25)

@@ -166,6 +166,32 @@ def test_video_frames_follow_the_first_key_at_once(face, monkeypatch):
     assert sent[0] == 0 and sent[1] <= 10
 
 
+def test_a_video_frame_dropped_by_its_encoder_is_tried_on_the_next_frame(face, monkeypatch):
+    """libvpx drops a frame that would overrun its buffer once coded (codec/render/vp9.py): nothing is
+    sent for it, the next frame is coded instead, and the receiver still draws the sender's pictures."""
+    tried, encode = [], VideoEncoder.encode
+
+    def dropping(self, rgb, model, key=False):
+        tried.append(key)
+        return b"" if len(tried) == 3 else encode(self, rgb, model, key)
+
+    sent, send = [], picture_layer.PictureLayer._send
+
+    def sending(self, seq, *rest):
+        packets = send(self, seq, *rest)
+        sent.append((seq, bool(packets)))
+        return packets
+
+    monkeypatch.setattr(VideoEncoder, "encode", dropping)
+    monkeypatch.setattr(picture_layer.PictureLayer, "_send", sending)
+    with sender_pictures() as pictures:
+        chunks = list(facedeform.encode(CLIP, face, bitrate=RATE * 1000, embed_face=False))
+    (dropped, went), (after, _) = sent[2], sent[3]
+    assert not went and after == dropped + 1 and all(went for _, went in sent[:2] + sent[3:])
+    for mine, theirs in zip(pictures, facedeform.decode(chunks, face), strict=True):
+        np.testing.assert_array_equal(mine, theirs)
+
+
 def test_the_call_s_first_key_costs_what_the_model_misses(face):
     """Coded from the model's picture of its frame (after a flat grey key frame), the call's first key at
     4 kbit/s takes a small share of the first 2-second window (an AV1 key of the frame alone had taken

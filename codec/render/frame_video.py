@@ -66,6 +66,11 @@ _CHANGE = (20, 1)  # starting counts of a block's change: most blocks keep their
 #: A payload's flags: a key, blocks only, the model's blocks drawn where the model is (not moved onto the
 #: video), and a counter in the bits above (COUNTER values) by which a receiver knows it missed one.
 KEY, BLOCKS_ONLY, STILL, COUNTER = 1, 2, 4, 32
+#: Frames the video codes after a key or a dropped frame before it may drop one again. libvpx learns its
+#: frames' sizes only from those it keeps, and after a drop codes the next at its coarsest: dropping
+#: at once again, it went on dropping every other frame (sadtalker_RD_Radio34's crop at 4 kbit/s, 28
+#: of 57, from the call's first key on, whose frame had emptied its buffer).
+CALM = 2
 SMALLEST_SIDE = 64  # pixels: the smallest video the layer codes
 HELD = 64  # payloads held for frames not yet drawn: more than a receiver's buffer holds
 
@@ -87,17 +92,22 @@ class VideoEncoder:
     def __init__(self, size: tuple[int, int], bitrate: float, fps: float) -> None:
         self._vp9 = vp9.Encoder(size, bitrate, fps)
         self.size = size
+        self._kept = 0  # frames coded since the last key or drop
 
     def encode(self, rgb: np.ndarray, model: np.ndarray, key: bool = False) -> bytes:
         """The coded frame of ``rgb`` ((h, w, 3) uint8 at the video's size), ``model`` (the same size:
         the model's picture of the frame, :meth:`receiver.face_view.PictureView.reference_picture`) in
         its golden reference. A key is a flat grey key frame (a dozen bytes: VP9 starts from a key) with
         every reference then set to ``model``, and the frame coded from them, behind the key's length
-        (2 bytes): a call's first frame costs what the model misses, not a picture."""
+        (2 bytes): a call's first frame costs what the model misses, not a picture. b"": a frame that
+        would have overrun libvpx's buffer, dropped (never a key)."""
         planes, reference = to_yuv(rgb), to_yuv(model)
         if not key:
             self._vp9.set_reference(vp9.GOLDEN, reference)
-            return self._vp9.encode(planes, keep_golden=True)
+            video = self._vp9.encode(planes, keep_golden=True, droppable=self._kept >= CALM)
+            self._kept = self._kept + 1 if video else 0
+            return video
+        self._kept = 0
         grey = self._vp9.encode(np.full_like(planes, 128), key=True)
         for slot in vp9.SLOTS:
             self._vp9.set_reference(slot, reference)

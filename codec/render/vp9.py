@@ -10,9 +10,10 @@ video every 6th frame) the frames coded so came out 1.0-3.8 dB above SVT-AV1's a
 the model's picture after a flat grey key of a dozen bytes (docs/picture_layer.md).
 
 Only what the layer needs is bound: one-pass CBR in real time without lag, keys on request, the
-golden slot set before a frame. The configuration structure is filled by libvpx's own defaults and
-changed at offsets checked against those defaults when the library is loaded; a libvpx whose layout
-differs is refused (:class:`Unavailable`), not guessed at.
+golden slot set before a frame, frames dropped once coded where they would overrun the rate. The
+configuration structure is filled by libvpx's own defaults and changed at offsets checked against
+those defaults when the library is loaded; a libvpx whose layout differs is refused
+(:class:`Unavailable`), not guessed at.
 """
 
 import ctypes
@@ -28,24 +29,23 @@ from facedeform.common.errors import FdError
 LAST, GOLDEN, ALTREF = 1, 2, 4
 SLOTS = (LAST, GOLDEN, ALTREF)  # all three: what a key leaves holding the model's picture
 _FORCE_KEY, _KEEP_GOLDEN = 1, 1 << 22  # VPX_EFLAG_FORCE_KF, VP8_EFLAG_NO_UPD_GF
-_SET_REFERENCE, _CPU_USED = 1, 13  # VP8_SET_REFERENCE, VP8E_SET_CPUUSED
+_SET_REFERENCE, _CPU_USED, _DROP = 1, 13, 66  # VP8_SET_REFERENCE, VP8E_SET_CPUUSED, VP9E_SET_POSTENCODE_DROP
 _I420, _REALTIME = 0x102, 1  # VPX_IMG_FMT_I420, VPX_DL_REALTIME
 _ENCODER_ABI, _DECODER_ABI = 39, 12  # libvpx 1.16's VPX_ENCODER_ABI_VERSION, VPX_DECODER_ABI_VERSION
-#: libvpx's speed in real time. 3 (its slower search) gained the nine dev crops 0.32 dB at 4 kbit/s and
-#: 0.35 at 10 (a 128x128 video), but its frames overran their share further: the costliest 2-second
-#: window at 4 kbit/s 1.173 of the rate (pcavs_Pose_Source), past the 1.10 allowed; it would also have
-#: slowed the sender at 640x512 and 60 kbit/s from 33 frames/s to 22. 4: +0.03 and -0.06 dB (costliest
-#: window 1.064); 7: -0.24 and -0.20.
-SPEED = 5
+#: libvpx's speed in real time: its slower search (3) for videos of at most SLOW_PIXELS, else 5. On the
+#: nine dev crops (a 128x128 video) 3 gained 0.31 dB at 4 kbit/s and 0.30 at 10, every clip up, once
+#: frames that would overrun the buffer were dropped (:meth:`Encoder.encode`); without that its frames
+#: had taken the costliest 2-second window at 4 kbit/s to 1.173 times the rate. It costs 7.6 ms a
+#: frame at 128x128 against 0.5, 28 at 256x256 against 2: at 640x512 and 60 kbit/s (a 320x256 video)
+#: it had slowed the sender from 33 frames/s to 22. 4: +0.03 and -0.06 dB; 7: -0.24 and -0.20.
+SLOW, FAST, SLOW_PIXELS = 3, 5, 160 * 160
 #: libvpx's rate control counts in whole kbit/s: the encoder is told a clock this many times faster
 #: and a rate this many times higher, the same bits a frame, so that 2.3 kbit/s is not 2.
 _CLOCK = 10
-#: The encoder's buffer, ms of the real clock: how far its rate control lets a frame run over its share.
-#: Half of what real-time VP9 is usually given (1000, 500, 600): with that, a frame as
-#: sadtalker_WDA_KatieHill's head turned took five times its share and her first 2-second window at
-#: 4 kbit/s 1.145 times the rate (1.001 now; the nine dev crops' costliest windows at most 1.07);
-#: -0.02 dB on average at 4 kbit/s, -0.01 at 10. A quarter of it: -0.14 dB at 4 kbit/s.
-_BUFFER_MS, _BUFFER_START_MS, _BUFFER_AIM_MS = 500, 250, 300
+#: The encoder's buffer, ms of the real clock: how far its rate control lets a frame run over its share,
+#: as real-time VP9 is usually given it. A frame that would empty it is dropped once coded; with half of
+#: it, libvpx dropped so often that it lost 0.18 dB at 4 kbit/s (the rate's windows kept either way).
+_BUFFER_MS, _BUFFER_START_MS, _BUFFER_AIM_MS = 1000, 500, 600
 _FINEST, _COARSEST = 4, 63  # the quantiser's range
 
 
@@ -179,20 +179,28 @@ class Encoder(_Codec):
         if lib.vpx_codec_enc_init_ver(self._context, interface, config, 0, _ENCODER_ABI) != 0:
             raise Unavailable("libvpx's VP9 encoder did not open")
         self._open = True  # destroyed from here on, if the speed is refused too
-        if lib.vpx_codec_control_(self._context, _CPU_USED, ctypes.c_int(SPEED)) != 0:
+        speed = SLOW if size[0] * size[1] <= SLOW_PIXELS else FAST
+        if lib.vpx_codec_control_(self._context, _CPU_USED, ctypes.c_int(speed)) != 0:
             raise Unavailable("libvpx's VP9 encoder refused its speed")
-        self.size, self._count = size, 0
+        self.size, self._count, self._droppable = size, 0, False
 
     def set_reference(self, slot: int, planes: np.ndarray) -> None:
         """Puts ``planes`` (I420 of the encoder's size) into reference ``slot`` (LAST, GOLDEN, ALTREF)."""
         if not self._set_reference(slot, planes, self.size):
             raise RuntimeError("libvpx refused a reference")
 
-    def encode(self, planes: np.ndarray, key: bool = False, keep_golden: bool = False) -> bytes:
+    def encode(self, planes: np.ndarray, key: bool = False, keep_golden: bool = False,
+               droppable: bool = False) -> bytes:
         """The coded frame of ``planes`` (I420), a key if asked; ``keep_golden``: the golden slot is
-        not replaced by this frame."""
+        not replaced by this frame. ``droppable``: an inter frame that would take libvpx's buffer
+        below empty is dropped once coded (b""; the references and contexts as before it, the next frame
+        coded at the coarsest quantiser)."""
         lib = _library()[0]
         image = _wrap(np.ascontiguousarray(planes), self.size)
+        if droppable != self._droppable:
+            if lib.vpx_codec_control_(self._context, _DROP, ctypes.c_uint(droppable)) != 0:
+                raise RuntimeError("libvpx refused to drop frames")
+            self._droppable = droppable
         flags = (_FORCE_KEY if key else 0) | (_KEEP_GOLDEN if keep_golden else 0)
         if lib.vpx_codec_encode(self._context, ctypes.byref(image), self._count, 1, flags, _REALTIME) != 0:
             raise RuntimeError("libvpx's VP9 encoder failed")
