@@ -22,14 +22,17 @@ NMS_IOU = 0.3
 
 
 def load_model(name: str) -> cv2.dnn.Net:
-    """Load a .tflite model from sender/models on the classic engine.
+    """Load a .tflite model from sender/models, on OpenCV 5.0's classic engine where it has one.
 
-    OpenCV 5's new engine exposes only one output of these models; the classic
-    engine returns all of them from one forward pass, and faster.
+    OpenCV 5.0's new engine exposed only one output of these models; its classic engine returns all
+    of them from one forward pass, and faster. OpenCV 4 has only the classic engine, and 5.1 only
+    the new one, which returns both outputs again.
     """
     path = MODELS / name
+    engine = getattr(cv2.dnn, "ENGINE_CLASSIC", None)
     try:
-        net = cv2.dnn.readNetFromTFLite(str(path), engine=cv2.dnn.ENGINE_CLASSIC)
+        net = cv2.dnn.readNetFromTFLite(str(path)) if engine is None else \
+            cv2.dnn.readNetFromTFLite(str(path), engine=engine)
     except cv2.error:
         net = None
     if net is None or net.empty():

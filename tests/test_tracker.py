@@ -121,3 +121,9 @@ def test_mirrored_pair_gives_one_face(tracker):
 def test_missing_model_is_an_input_error():
     with pytest.raises(InputError, match="no_such_model.tflite"):
         load_model("no_such_model.tflite")
+
+
+def test_the_models_load_on_an_opencv_without_a_classic_engine(monkeypatch):
+    """OpenCV 4 and 5.1 have no ENGINE_CLASSIC (5.0 has): the models load on the engine they have."""
+    monkeypatch.delattr(cv2.dnn, "ENGINE_CLASSIC", raising=False)
+    assert not load_model("face_landmark.tflite").empty()
