@@ -124,14 +124,19 @@ class ReceiveSession:
     def _picture_layer(self, event: Picture) -> None:
         """The picture layer's payload: handed to a view that draws the whole picture; one that
         cannot be used is reported, the model's picture drawn alone until the layer's next key."""
-        view = self._view
-        if not isinstance(view, PictureView) or self.face_kind == "preview":  # the layer draws over the face itself
+        view = self._layered(self._view)
+        if view is None:
             return
         if view.layer.take(event.seq, event.data):
             self.layer_packets += 1
         else:
             self._warn(f"picture layer lost or damaged at frame {event.seq}: "
                        "the model's picture alone until its next key")
+
+    def _layered(self, view: View | None) -> PictureView | None:
+        """``view`` if it draws the picture layer: a whole picture, not a preview (the layer draws over
+        the face itself)."""
+        return view if isinstance(view, PictureView) and self.face_kind != "preview" else None
 
     def _start(self, header: Header) -> None:
         self._header_seen = header
@@ -212,8 +217,8 @@ class ReceiveSession:
                 self._dump = decoded_dump(self._dump_path, len(self._header.names))
             self._dump.add(params=frame.params, seq=frame.seq, face_seen=frame.face_seen,
                            concealed=frame.concealed, interpolated=frame.interpolated)
-        if isinstance(view, PictureView) and self.face_kind != "preview" and \
-                not view.advance(frame.params, frame.seq, exact=not frame.concealed):
+        layered = self._layered(view)
+        if layered is not None and not layered.advance(frame.params, frame.seq, exact=not frame.concealed):
             self._warn(f"picture layer lost at frame {frame.seq}: the model's picture alone until its next key")
         # output frames whose time falls in this frame's interval: 1 at the stream's rate
         repeats = math.ceil((frame.seq + 1) * self._ratio) - math.ceil(frame.seq * self._ratio)

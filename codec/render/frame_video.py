@@ -120,6 +120,32 @@ class VideoEncoder:
         self._vp9.close()
 
 
+class VideoDecoder:
+    """What :class:`VideoEncoder` codes from a key on, decoded as it was coded: each frame with the
+    model's picture of it in the golden reference (in every reference at the key), frames of at most
+    ``largest`` (w, h)."""
+
+    def __init__(self, largest: tuple[int, int]) -> None:
+        self._vp9 = vp9.Decoder(largest)
+
+    def decode(self, video: bytes, key: bool, model: Callable[[tuple[int, int]], np.ndarray]) -> np.ndarray | None:
+        """The (h, w, 3) RGB frame of ``video`` (:meth:`VideoEncoder.encode`), ``model(the video's size)``
+        giving the model's picture it was coded from; None if it does not decode (or no key came)."""
+        if key:
+            length = int.from_bytes(video[:2], "big")
+            if len(video) < 2 + length or self._vp9.decode(video[2:2 + length]) is None:
+                return None
+            video = video[2 + length:]
+        size = self._vp9.size
+        if size is None:
+            return None
+        picture = to_yuv(model(size))
+        if not all(self._vp9.set_reference(slot, picture) for slot in (vp9.SLOTS if key else (vp9.GOLDEN,))):
+            return None
+        planes = self._vp9.decode(video)
+        return None if planes is None else from_yuv(planes, size)
+
+
 def to_yuv(rgb: np.ndarray) -> np.ndarray:
     """(h, w, 3) uint8 RGB of even sides as its I420 planes, (3h/2, w) uint8, as a still picture is
     coded (:func:`encode_still`): full-range BT.601 (JPEG's YCbCr, rounded), the chroma the mean of
@@ -513,7 +539,7 @@ class VideoLayer:
 
     def __init__(self, picture_size: tuple[int, int]) -> None:
         self.picture_size = picture_size
-        self._decoder: vp9.Decoder | None = None
+        self._decoder: VideoDecoder | None = None
         self._none = np.zeros(blocks_of(picture_size), dtype=bool)  # no block the model's
         self._counter: int | None = None  # the last payload's; None: waiting for a key
         #: payloads taken, not yet decoded: (frame, key, the video or None for blocks only, chosen blocks,
@@ -624,19 +650,8 @@ class VideoLayer:
         """The (h, w, 3) RGB frame of a payload's ``video`` (:meth:`VideoEncoder.encode`); None if it does
         not decode (or no key since the decoder was lost)."""
         if key:
-            length = int.from_bytes(video[:2], "big")
-            self._decoder = vp9.Decoder(video_size(self.picture_size, max(self.picture_size)))
-            if len(video) < 2 + length or self._decoder.decode(video[2:2 + length]) is None:
-                return None
-            video = video[2 + length:]
-        if self._decoder is None or self._decoder.size is None:
-            return None
-        model = to_yuv(reference(self._decoder.size))
-        slots = vp9.SLOTS if key else (vp9.GOLDEN,)
-        if not all(self._decoder.set_reference(slot, model) for slot in slots):
-            return None
-        planes = self._decoder.decode(video)
-        return None if planes is None else from_yuv(planes, self._decoder.size)
+            self._decoder = VideoDecoder(video_size(self.picture_size, max(self.picture_size)))
+        return None if self._decoder is None else self._decoder.decode(video, key, reference)
 
     def _hold(self, seq: int, frame: np.ndarray | None, chosen: np.ndarray, since: int, move: bool = True) -> None:
         self._states.append((seq, frame, chosen, since, move))

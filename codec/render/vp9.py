@@ -5,8 +5,8 @@ every frame, bit for bit, and libvpx lets a caller put a picture of its own into
 of its encoder and of its decoder (``VP8_SET_REFERENCE``), so each video frame is coded from the
 model's picture as well as from the last video frame. SVT-AV1 and dav1d have no such call, and
 PyAV exposes no codec controls at all, hence ctypes. On the nine dev clips' 256x256 crops (a
-128x128 video every 6th frame, benchmarks/bench_video_codecs.py) the frames coded so came out 0.8-7.0
-dB above SVT-AV1's at 2.3 kbit/s (29.55 dB against 26.03 on average) and 0.8-3.2 at 7, and a
+128x128 video every 6th frame, benchmarks/bench_video_codecs.py) the frames coded so came out 2.2-7.0
+dB above SVT-AV1's at 2.3 kbit/s (29.47 dB against 26.03 on average) and 0.8-3.2 at 7, and a
 call's first frame costs 40-260 bytes instead of 210-550: it is coded from the model's picture after
 a flat grey key of a dozen bytes (docs/picture_layer.md).
 
