@@ -13,7 +13,7 @@ from facedeform.codec.model.deform import Deformer
 from facedeform.codec.model.face_model import BaseFace, mouth_vertices
 from facedeform.codec.render.camera import Camera
 from facedeform.codec.render.eyelids import Eyelids
-from facedeform.codec.render.frame_video import HELD, VideoLayer, shrunk
+from facedeform.codec.render.frame_video import HELD, VideoLayer, drawn_size, shrunk
 from facedeform.codec.render.mouth_interior import LOWER_LIP, UPPER_LIP
 from facedeform.codec.render.picture import (
     Placement,
@@ -182,21 +182,36 @@ class PictureView(FaceView):
         #: (video frame, its frame, the entry of the frame drawn last, the carried picture): the sender
         #: asks for the same one twice in a frame (to choose the blocks, then to draw)
         self._carry_last: tuple[np.ndarray, int, tuple, np.ndarray] | None = None
-        self._reference: PictureView | None = None  # the model's picture at the layer's video size
+        self._reference: PictureView | None = None  # draws the model's picture a video frame is coded from
+        #: (frame, parameters, the model's picture, the same at the video's size) drawn to decode a video
+        #: frame, which :meth:`render` then draws over instead of drawing it again (a view of the
+        #: picture's own size)
+        self._ahead: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def advance(self, params: np.ndarray, seq: int, exact: bool = True) -> bool:
         """Decodes the picture layer's payloads of frame ``seq`` (before :meth:`render` draws it, and
         whether it is drawn or not), whose parameters are ``params``, as sent unless not ``exact`` (a
         frame concealed: a payload of it cannot be decoded as the sender did). False if one was lost."""
-        return self.layer.decode_due(seq, (lambda size: self.reference_picture(params, seq, size)) if exact else None)
+        return self.layer.decode_due(seq, (lambda size: self._decoded_from(params, seq, size)) if exact else None)
+
+    def _decoded_from(self, params: np.ndarray, seq: int, size: tuple[int, int]) -> np.ndarray:
+        """:meth:`reference_picture`, from this view's own drawing of the frame where it is drawn at
+        that size (kept for :meth:`render`): the drawing is the same whatever was drawn before (a
+        receiver's reference view draws only the video's frames)."""
+        if self.size != drawn_size(self._picture_size, size):
+            return self.reference_picture(params, seq, size)
+        model = self.model_picture(params, seq)
+        small = shrunk(model, size)
+        self._ahead = seq, params.copy(), model, small
+        return small
 
     def reference_picture(self, params: np.ndarray, seq: int, size: tuple[int, int]) -> np.ndarray:
         """The model's picture of frame ``seq`` at ``size`` (w, h): what the layer's video frame of ``seq``
-        is coded from, the same at both ends whatever this view's size. Drawn at the reference picture's
-        size by a view of its own and shrunk as the frame is: drawn at the video's size, its texture read
-        a pixel in two and the layer gained 0.07 dB at 4 kbit/s on the dev crops instead of 0.41."""
-        if self._reference is None:
-            self._reference = PictureView(*self._made[:2], self._picture_size, self._made[2])
+        is coded from, the same at both ends whatever this view's size: drawn at
+        :func:`~facedeform.codec.render.frame_video.drawn_size` by a view of its own and shrunk."""
+        drawn = drawn_size(self._picture_size, size)
+        if self._reference is None or self._reference.size != drawn:
+            self._reference = PictureView(*self._made[:2], drawn, self._made[2])
         return shrunk(self._reference.model_picture(params, seq), size)
 
     def render(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None) -> np.ndarray:
@@ -204,9 +219,12 @@ class PictureView(FaceView):
         holds for that frame; ``shape``: a (468, 3) pose-free face (base-face units) to draw
         instead of the one the parameters' expression deforms (the expression benchmark's oracle,
         the tracked face itself), placed by the parameters' head pose and global motion."""
-        model = self.model_picture(params, seq, shape)
-        self.advance(params, self._seq)  # a payload not yet decoded (the receiver's session decodes first)
-        return self.layer.draw(self._seq, model, self.carry)
+        seq = self._seq + 1 if seq is None else seq
+        self.advance(params, seq)  # a payload not yet decoded (the receiver's session decodes first)
+        ahead, self._ahead = self._ahead, None
+        if shape is None and ahead is not None and ahead[0] == seq and np.array_equal(ahead[1], params):
+            return self.layer.draw(seq, ahead[2], self.carry, ahead[3])  # drawn for the video frame, placed last
+        return self.layer.draw(seq, self.model_picture(params, seq, shape), self.carry)
 
     def model_picture(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None
                       ) -> np.ndarray:
@@ -246,12 +264,12 @@ class PictureView(FaceView):
         return self._scene.reference, self._scene.pivot
 
     def carry(self, video: np.ndarray, since: int) -> np.ndarray:
-        """The picture layer's video frame ``video`` (any size), which shows frame ``since``, at this
-        view's size and moved to the frame last drawn: the scene mesh drawn where it is now, textured
-        by the video where the mesh was then, and past the rings the video moved by the change of
-        the global motion. The model's motion carries the video between its frames (a held frame no
-        longer lags a turning head or a moving mouth); at frame ``since`` itself it is the video scaled
-        up. Drawn at the video's own size and then scaled up: the video has no finer detail to move."""
+        """The picture layer's video frame ``video`` (any size), which shows frame ``since``, moved to the
+        frame last drawn, at the video's size (the video has no finer detail to move): the scene mesh
+        drawn where it is now, textured by the video where the mesh was then, and past the rings the
+        video moved by the change of the global motion. The model's motion carries the video between
+        its frames (a held frame no longer lags a turning head or a moving mouth); at frame ``since``
+        itself it is the video."""
         drawn = self._drawn[-1]
         last = self._carry_last
         if last is not None and last[0] is video and last[1] == since and last[2] is drawn:
@@ -262,14 +280,12 @@ class PictureView(FaceView):
         return out
 
     def _carry(self, video: np.ndarray, since: int, drawn: tuple[int, np.ndarray, Motion]) -> np.ndarray:
-        import cv2
-
         (pw, ph), (vw, vh) = self._picture_size, video.shape[1::-1]
         _, now, now_motion = drawn
         # (a frame not drawn here, its parameters lost: the video as it is)
         _, then, then_motion = next((d for d in reversed(self._drawn) if d[0] == since), self._drawn[-1])
         if then is now:  # the video's own frame: nothing to carry
-            return cv2.resize(video, self.size, interpolation=cv2.INTER_LINEAR)
+            return video
         scale = np.array([vw / pw, vh / ph, np.sqrt(vw * vh / (pw * ph))])
         carrier = self._carrier
         if carrier is None or self._carried is None or self._carried[0] is not video or self._carried[1] != since:
@@ -284,8 +300,7 @@ class PictureView(FaceView):
         if self._carried_motion is None or not _same((then_motion, now_motion), self._carried_motion):
             self._carried_motion = then_motion, now_motion
             carrier.set_background(self._moved_video(video, then_motion, now_motion))
-        carried = carrier.image(now * scale, _picture_camera((vw, vh)))
-        return cv2.resize(carried, self.size, interpolation=cv2.INTER_LINEAR)
+        return carrier.image(now * scale, _picture_camera((vw, vh)))
 
     @property
     def mouth_box(self) -> tuple[float, float, float, float]:

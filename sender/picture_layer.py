@@ -23,6 +23,7 @@ from facedeform.codec.render.frame_video import (
     VideoLayer,
     blocks_in,
     choose_payload,
+    drawn_size,
     shrunk,
     video_size,
 )
@@ -289,9 +290,10 @@ class PictureLayer:
         """The packets of a video frame (a key if ``key``) for frame ``seq`` of parameters ``params``,
         coded from the model's picture of it (codec/render/frame_video.VideoEncoder)."""
         favour, looked = self._favour(), self._looked(bgr)
-        small = looked if looked.shape[1::-1] == self._video_size else \
-            cv2.cvtColor(shrunk(bgr, self._video_size), cv2.COLOR_BGR2RGB)
-        reference = self._view.reference_picture(params, seq, self._video_size)
+        small = shrunk(looked, self._video_size)  # (from the choice's size: at 1080p 1 ms, from the frame's 4)
+        drawn = self._look.size == drawn_size(self.size, self._video_size)  # the picture it is coded from
+        reference = shrunk(model, self._video_size) if drawn else \
+            self._view.reference_picture(params, seq, self._video_size)
         if self._encoder is None:
             self._encoder = VideoEncoder(self._video_size, *self._encoder_rate)
         video = self._encoder.encode(small, reference, key)
@@ -299,7 +301,7 @@ class PictureLayer:
             return []
         data = self._layer.make(seq, video, key, model, self._look.carry, lambda parts, still, before:
                                 choose_payload(parts, still, looked, before, favour=favour, shrink=self._shrink),
-                                reference)
+                                reference, reference if drawn else None)
         packets = [] if data is None else encoder.picture(seq, data)
         bits = 8 * stream_size(packets, self._sealed)
         if self._last_key is not None:  # the first key is the call's own: the window alone holds it

@@ -16,6 +16,7 @@ from facedeform.codec.render.frame_video import (
     blocks_of,
     choose_payload,
     decode_blocks,
+    drawn_size,
     encode_blocks,
     encode_still,
     shrunk,
@@ -260,12 +261,24 @@ def test_blocks_in_a_box_and_a_favoured_model():
 
 def test_a_frame_shrunk_by_halves_is_within_a_level_of_one_step():
     frame = np.random.default_rng(3).integers(0, 256, (216, 384, 3), dtype=np.uint8)
-    for side in (192, 96, 48, 100):
+    for side in (192, 96, 48):
         size = (side, round(side * 216 / 384))
         once = cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
         got = shrunk(frame, size)
         assert got.shape == once.shape and np.abs(got.astype(int) - once).max() <= 1
-        assert (got == once).all() == (side in (192, 100))  # a half, or no whole number: one step
+        assert (got == once).all() == (side == 192)  # a half: one step
+    # no whole number of times smaller: halved while at least twice, then the rest of the way
+    half = cv2.resize(frame, (192, 108), interpolation=cv2.INTER_AREA)
+    np.testing.assert_array_equal(shrunk(frame, (100, 56)), cv2.resize(half, (100, 56), interpolation=cv2.INTER_AREA))
+
+
+def test_the_model_s_picture_of_a_video_frame_is_drawn_at_twice_the_video_s_side_or_more():
+    """At the picture's size unless a half of it still has twice the video's larger side."""
+    assert drawn_size((256, 256), (128, 128)) == (256, 256)
+    assert drawn_size((1280, 720), (640, 360)) == (1280, 720)
+    assert drawn_size((1920, 1080), (480, 272)) == (960, 540)
+    assert drawn_size((3840, 2160), (480, 272)) == (960, 540)
+    assert drawn_size((1921, 1080), (240, 136)) == (1921, 1080)  # an odd side is not halved
 
 
 def textured_disc(side: int, dx: int) -> np.ndarray:

@@ -240,15 +240,27 @@ class StillDecoder:
 
 
 def shrunk(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """``image`` scaled down to ``size`` by area averaging; where ``size`` is its size over a multiple
-    of 4, halved first until it is not (OpenCV's halving is its fast way: from 1920x1080, 0.9 ms on
-    one thread to 960x540 and 1.0 to 480x270 by two halvings, 3.0-3.8 in one step; the halves round
-    twice, to within a level of the one step's mean)."""
-    while image.shape[1] % (4 * size[0]) == 0 and image.shape[0] % (4 * size[1]) == 0 and \
-            image.shape[1] // size[0] == image.shape[0] // size[1]:
+    """``image`` scaled down to ``size`` by area averaging: halved while it stays at least twice
+    ``size`` (OpenCV's halving is its fast way: from 1920x1080, 0.9 ms on one thread to 960x540, then
+    1.0 to the video's 480x272, against 3.0-5 in one step; the halves round twice, to within a level of
+    the one step's mean), then scaled the rest of the way."""
+    while image.shape[1] >= 2 * size[0] and image.shape[0] >= 2 * size[1] and \
+            image.shape[1] % 2 == 0 and image.shape[0] % 2 == 0:
         image = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
     same = image.shape[1::-1] == tuple(size)
     return image if same else cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+
+
+def drawn_size(picture_size: tuple[int, int], video: tuple[int, int]) -> tuple[int, int]:
+    """(w, h) at which both ends draw the model's picture that a ``video``-sized frame of the layer is
+    coded from (then :func:`shrunk` to it): the picture's own, halved while its larger side stays at
+    least twice the video's. Drawn at the video's size, its texture is read a pixel in two (0.07 dB
+    at 4 kbit/s on the dev crops against 0.41 at twice); at 1920x1080 with a 480x272 video the whole
+    size cost each end 20 ms a video frame, 960x540 is what the sender chooses the blocks at anyway."""
+    w, h = picture_size
+    while w % 2 == 0 and h % 2 == 0 and max(w, h) // 2 >= 2 * max(video):
+        w, h = w // 2, h // 2
+    return w, h
 
 
 def blocks_of(picture_size: tuple[int, int]) -> tuple[int, int]:
@@ -339,12 +351,14 @@ def _soft(chosen: np.ndarray, picture_size: tuple[int, int], size: tuple[int, in
     return cv2.resize(cv2.GaussianBlur(mask, (0, 0), wider * quarter / 4), size, interpolation=cv2.INTER_LINEAR)
 
 
-def video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = None, move: bool = True) -> VideoParts:
-    """What :func:`blend` and :func:`choose_payload` draw the video frame ``video`` (any size) with,
-    over ``model`` ((H, W, 3) uint8): the model's picture moved onto the video (MODEL_SHIFT; as it is
-    if not ``move``), the
-    video scaled up (``up`` if given: the same already at the model's size, carried by the face), the
-    model's detail, and where the two agree. Made once a frame, by both ends alike.
+def video_parts(model: np.ndarray, video: np.ndarray, move: bool = True,
+                small: np.ndarray | None = None) -> VideoParts:
+    """What :func:`blend` and :func:`choose_payload` draw the video frame ``video`` (any size; carried by
+    the face to ``model``'s frame, where it was another's) with, over ``model`` ((H, W, 3) uint8): the
+    model's picture moved onto the video (MODEL_SHIFT; as it is if not ``move``), the video scaled up,
+    the model's detail, and where the two agree. Made once a frame, by both ends alike. ``small``:
+    ``model`` :func:`shrunk` to the video's size where the caller has it (the reference a video frame
+    was decoded from: at 1920x1080 a shrinking of 3-5 ms saved).
 
     The detail is what the video is too small to show: the model's picture less itself at the video's
     size. Added where it is, it lands a few pixels off wherever the model's picture is (the lips, the
@@ -356,14 +370,14 @@ def video_parts(model: np.ndarray, video: np.ndarray, up: np.ndarray | None = No
     sharp as they are, and scaled up: at 1920x1080 the parts took 8.4 ms measured at the picture's,
     5.9 this way."""
     h, w = model.shape[:2]
-    small = video.shape[1::-1]
-    up = cv2.resize(video, (w, h), interpolation=cv2.INTER_LINEAR) if up is None else np.ascontiguousarray(up)
+    size = video.shape[1::-1]
+    up_small = np.ascontiguousarray(video)
+    up = cv2.resize(up_small, (w, h), interpolation=cv2.INTER_LINEAR)
     model = np.ascontiguousarray(model)
-    model_small = shrunk(model, small)
+    model_small = shrunk(model, size) if small is None or small.shape[1::-1] != size else small
     detail = cv2.subtract(model, cv2.resize(model_small, (w, h), interpolation=cv2.INTER_LINEAR), dtype=cv2.CV_16S)
-    up_small = shrunk(up, small)
     most, scale = UNMOVED_AGREE
-    if w * h <= ALIGNED and small != (w, h):  # a video of the picture's size leaves no detail to move
+    if w * h <= ALIGNED and size != (w, h):  # a video of the picture's size leaves no detail to move
         flow = _alignment(up_small, model_small)
         detail, model_small = _moved(detail, flow), _moved(model_small, flow)
         if move:
@@ -521,11 +535,12 @@ def _block_errors(model, up, detail, agree, frame, rows, columns, block):  # pra
 
 
 def _carried_parts(model: np.ndarray, frame: np.ndarray, since: int,
-                   carry: Callable[[np.ndarray, int], np.ndarray] | None, move: bool = True) -> VideoParts:
+                   carry: Callable[[np.ndarray, int], np.ndarray] | None, move: bool = True,
+                   small: np.ndarray | None = None) -> VideoParts:
     """The video_parts of the layer's video ``frame`` (which shows frame ``since``) over ``model``
-    (``move``: moved onto the video), the frame moved by ``carry`` to the one ``model`` draws (None: held
-    still): what the sender's choice and both ends' drawing see."""
-    return video_parts(model, frame, None if carry is None else carry(frame, since), move)
+    (``move``: moved onto the video; ``small``: as video_parts takes it), the frame moved by ``carry`` to
+    the one ``model`` draws (None: held still): what the sender's choice and both ends' drawing see."""
+    return video_parts(model, frame if carry is None else carry(frame, since), move, small)
 
 
 class VideoLayer:
@@ -586,9 +601,10 @@ class VideoLayer:
     def make(self, seq: int, video: bytes | None, key: bool, model: np.ndarray,
              carry: Callable[[np.ndarray, int], np.ndarray] | None,
              choose: Callable[[VideoParts, np.ndarray, np.ndarray], tuple[np.ndarray, bool]],
-             reference: np.ndarray | None = None) -> bytes | None:
+             reference: np.ndarray | None = None, small: np.ndarray | None = None) -> bytes | None:
         """The payload of frame ``seq`` for the sender's coded frame ``video`` (None: blocks only, the
-        last frame held) coded from ``reference`` (the model's picture at the video's size), taken as
+        last frame held) coded from ``reference`` (the model's picture at the video's size; ``small``:
+        ``model`` at the video's size where the sender has it, as :meth:`draw` takes it), taken as
         :meth:`take` and :meth:`decode_due` take it; its blocks and whether the model's picture is moved
         in them are ``choose(the video's parts over the model's picture ``model``, ``model``, the last
         choice)`` (:func:`choose_payload`), the decoded frame carried to ``seq`` as :meth:`draw` carries
@@ -604,7 +620,7 @@ class VideoLayer:
         if frame is None:
             raise ValueError("no frame to hold" if video is None else "the layer's own video did not decode")
         since = self._since if video is None else seq
-        chosen, move = choose(_carried_parts(model, frame, since, carry), model, self.chosen)
+        chosen, move = choose(_carried_parts(model, frame, since, carry, small=small), model, self.chosen)
         if video is None and np.array_equal(chosen, self.chosen) and move == self._move:
             return None
         start = self._none if key else self.chosen
@@ -632,10 +648,11 @@ class VideoLayer:
     def _move(self) -> bool:
         return self._states[-1][4] if self._states else True
 
-    def draw(self, seq: int, model: np.ndarray, carry: Callable[[np.ndarray, int], np.ndarray] | None = None
-             ) -> np.ndarray:
+    def draw(self, seq: int, model: np.ndarray, carry: Callable[[np.ndarray, int], np.ndarray] | None = None,
+             small: np.ndarray | None = None) -> np.ndarray:
         """The picture of frame ``seq`` whose model's picture is ``model``; ``carry(video frame, the
-        frame it shows)``: the video frame at the model's size, moved to frame ``seq`` (None: held still)."""
+        frame it shows)``: the video frame moved to frame ``seq``, at its own size (None: held still);
+        ``small``: ``model`` at the video's size, where the caller has it (:func:`video_parts`)."""
         while len(self._states) > 1 and self._states[1][0] <= seq:
             self._states.popleft()
         if not self._states or self._states[0][0] > seq:
@@ -643,7 +660,8 @@ class VideoLayer:
         _, frame, chosen, since, move = self._states[0]
         if frame is None:
             return model
-        return blend(_carried_parts(model, frame, since, carry, move), chosen, self.picture_size, frame.shape[1::-1])
+        parts = _carried_parts(model, frame, since, carry, move, small)
+        return blend(parts, chosen, self.picture_size, frame.shape[1::-1])
 
     def _decode(self, video: bytes, key: bool, reference: Callable[[tuple[int, int]], np.ndarray]
                 ) -> np.ndarray | None:
