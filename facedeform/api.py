@@ -136,7 +136,7 @@ class _FrameSource:
 class _Collect:
     """A sink that keeps each drawn frame until ``decode`` yields it."""
 
-    def __init__(self, pending: deque) -> None:
+    def __init__(self, pending: deque | list) -> None:
         self._pending = pending
 
     def write(self, rgb: np.ndarray) -> None:

@@ -330,3 +330,24 @@ def test_over_datagrams_a_lost_picture_packet_is_made_good_by_the_next_key(face)
     for seq in range(keys[1], len(pictures)):
         np.testing.assert_array_equal(drawn[seq], pictures[seq])  # in step again from the key
 
+
+
+def test_the_loss_benchmark_draws_what_the_receiver_draws(face):
+    """benchmarks/bench_loss.py's layer mode decodes datagrams with the library's receiver in process:
+    given every datagram it draws the sender's pictures bit for bit; a lost picture packet changes
+    what it draws (the model's picture alone until the layer's next key)."""
+    from benchmarks.bench_loss import drawn_frames
+
+    with sender_pictures() as pictures:
+        session = SendSession(str(CLIP), SendConfig(bitrate=RATE * 1000, embed_face=False, datagrams=True), face=face)
+        stream = [d for packets in session.packets() for d in packets]
+    drawn = drawn_frames(stream, face, len(pictures))
+    for mine, theirs in zip(pictures, drawn, strict=True):
+        np.testing.assert_array_equal(mine, theirs)
+    decoder = DatagramDecoder()
+    carrying = [i for i, d in enumerate(stream)
+                if any(isinstance(e, Picture) and not e.data[0] & 1 for e in decoder.receive(d))]
+    lost = stream[:carrying[0]] + stream[carrying[0] + 1:]
+    changed = [i for i, (mine, theirs) in enumerate(zip(pictures, drawn_frames(lost, face, len(pictures))))
+               if not np.array_equal(mine, theirs)]
+    assert changed and changed[-1] - changed[0] < 2 * 25
