@@ -261,21 +261,54 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return float(10 * np.log10(255.0 ** 2 / max(np.mean((a.astype(np.float64) - b) ** 2), 1e-10)))
 
 
-def bench_layer(clips: list[Path], bitrates: list[float], seeds: int) -> None:
+def reported_call(clip: Path, face, kbps: float, lost: np.ndarray) -> list[np.ndarray | None]:
+    """What the library's receiver draws of fd-send's whole picture of ``clip`` at ``kbps`` over datagrams
+    whose body datagrams ``lost`` (in order, the header's never) are dropped, the receiver reporting
+    to the sender as fd-recv does (experiment/reporting.py)."""
+    from facedeform.api import _Collect
+    from facedeform.experiment.reporting import ReportingReceiver
+    from facedeform.receiver.session import ReceiveSession
+    from facedeform.sender.config import SendConfig
+    from facedeform.sender.session import SendSession
+
+    session = SendSession(str(clip), SendConfig(bitrate=1000 * kbps, embed_face=False, datagrams=True), face=face,
+                          warn=lambda line: None)
+    link = ReportingReceiver(session, session.header.fps)
+    images: list[np.ndarray] = []
+    receiver = ReceiveSession(lambda fps, size: [_Collect(images)], None, face.model, warn=lambda line: None)
+    drawn: dict[int, np.ndarray] = {}
+    sent = 0
+    for datagrams in session.packets():
+        for datagram in datagrams:
+            sent += 1
+            if sent > 1 and lost[(sent - 2) % len(lost)]:
+                continue
+            events = link.receive(datagram)
+            before = len(images)
+            receiver.handle(events, time.perf_counter())
+            drawn.update(zip((e.seq for e in events if isinstance(e, Frame)), images[before:]))
+    return [drawn.get(seq) for seq in range(session.frame_count)]
+
+
+def bench_layer(clips: list[Path], bitrates: list[float], seeds: int, reports: bool = False) -> None:
     print("| kbit/s | pattern | PSNR dB | 5th percentile | loss's cost, dB | frames > 1 dB under the loss-free call |")
     print("|---|---|---|---|---|---|")
     for kbps in bitrates:
         calls = [layer_call(clip, kbps) for clip in clips]
-        clean = [[psnr(d, f) for d, f in zip(drawn_frames(stream, face, len(frames)), frames)]
-                 for stream, face, frames in calls]
+        clean = [[psnr(d, f) for d, f in zip(reported_call(clip, face, kbps, np.zeros(1, bool)) if reports else
+                                             drawn_frames(stream, face, len(frames)), frames)]
+                 for clip, (stream, face, frames) in zip(clips, calls)]
         for label, rate, kind, burst in LAYER_PATTERNS:
             means, fifths, costs, under = [], [], [], []
-            for (stream, face, frames), base in zip(calls, clean):
+            for clip, (stream, face, frames), base in zip(clips, calls, clean):
                 for seed in range(seeds if rate else 1):
                     rng = np.random.default_rng(seed)
-                    kept = arriving(stream, pattern_loss(len(stream), rate, kind, burst, rng),
-                                    np.random.default_rng(seed + 1000) if rate else None, 0.05, 0.02)
-                    drawn = drawn_frames(kept, face, len(frames))
+                    if reports:  # the sender hears the receiver: the call itself changes with the loss
+                        drawn = reported_call(clip, face, kbps, pattern_loss(4 * len(stream), rate, kind, burst, rng))
+                    else:
+                        kept = arriving(stream, pattern_loss(len(stream), rate, kind, burst, rng),
+                                        np.random.default_rng(seed + 1000) if rate else None, 0.05, 0.02)
+                        drawn = drawn_frames(kept, face, len(frames))
                     # a frame never drawn shows the one before it (the first: black)
                     last = np.zeros_like(frames[0])
                     scores = []
@@ -358,6 +391,8 @@ def main() -> None:
     p.add_argument("dumps", nargs="*", type=Path,
                    help="fd-send --dump files (the default layout's); for layer, videos (CLIP.fdface beside each)")
     p.add_argument("--bitrates", type=float, nargs="*", default=[4.0, 10.0], help="layer: kbit/s")
+    p.add_argument("--reports", action="store_true",
+                   help="layer: the receiver reports to the sender as fd-recv does (datagrams lost, not reordered)")
     p.add_argument("--seeds", type=int, default=5)
     p.add_argument("--key-interval", type=int, help="bursts: frames between keyframes (default: fd-send's over udp://)")
     p.add_argument("--copies", type=int, default=COPIES, help="bursts: frames packets each datagram carries again")
@@ -375,7 +410,7 @@ def main() -> None:
     elif args.what == "header":
         bench_header(args.dumps)
     elif args.what == "layer":
-        bench_layer(args.dumps, args.bitrates, args.seeds)
+        bench_layer(args.dumps, args.bitrates, args.seeds, args.reports)
     else:
         bench_flood(args.rates, args.seconds)
 

@@ -39,11 +39,13 @@ class LinkWatch:
         self._heard = -float("inf")  # when the last report came
         self._clean_from: Report | None = None  # the report since which none shows a loss
         self._clean = CLEAN  # datagrams they must show without one
+        self.lost = False  # the last report heard shows a loss
 
     def hear(self, report: Report | None) -> None:
         if report is None:
             return
-        if report.lost_since(self._last or _START):  # the first report counts from the call's start
+        self.lost = bool(report.lost_since(self._last or _START))  # the first report counts from the call's start
+        if self.lost:
             self._clean, self._clean_from = AFTER_LOSS, report
         elif self._clean_from is None:
             self._clean_from = _START

@@ -425,6 +425,8 @@ class SendSession:
         self.datagrams.joined, self.datagrams.lean = self._link.heard, lean
         if self.picture is not None:
             self.picture.key_every = LEAN_KEY_EVERY if lean else KEY_EVERY
+            if report is not None and self._link.lost:
+                self.picture.key_soon()
         self.lean_frames += lean
         return report
 

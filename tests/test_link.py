@@ -9,7 +9,7 @@ import pytest
 from facedeform.protocol.framing import PICTURE, SYNC, packet_type
 from facedeform.protocol.rate import RateKeeper
 from facedeform.protocol.report import SIZE, Report, encode_report, parse_report
-from facedeform.protocol.stream import DatagramDecoder, Frame
+from facedeform.protocol.stream import DatagramDecoder, Frame, Picture
 from facedeform.sender.config import SendConfig
 from facedeform.sender.link import AFTER_LOSS, CLEAN, LEAN_KEYS, QUIET, LinkWatch
 from facedeform.sender.session import SendSession
@@ -255,3 +255,30 @@ def test_a_session_foresees_the_frames_its_headers_repeats_go_with():
             went[-1] += 8 * (session.datagrams.repeated - before)
             before = session.datagrams.repeated
     assert sum(b > 0 for b in went) >= 2 and list(foreseen) == went
+
+
+def layer_keys(face, loss_from: int) -> list[int]:
+    """The frames of the picture layer's keys in the bundled clip at 10 kbit/s over datagrams, the
+    receiver reporting every 6th frame, its reports from frame ``loss_from`` on showing a loss."""
+    heard = []
+
+    def feedback() -> Report | None:
+        heard.append(None)
+        n = len(heard)
+        return Report(n, int(n >= loss_from), 0) if n % 6 == 0 else None
+
+    session = SendSession(str(CLIP), SendConfig(bitrate=10_000, datagrams=True, embed_face=False), face=face)
+    session.feedback = feedback
+    decoder = DatagramDecoder()
+    return [e.seq for packets in session.packets() for p in packets for e in decoder.receive(p)
+            if isinstance(e, Picture) and e.data[0] & 1]
+
+
+def test_a_reported_loss_brings_the_picture_layer_s_next_key_forward(face):
+    """A receiver that lost a packet of the layer draws the model's picture alone until its next key (a
+    second after the last over datagrams, at frame 24 here without the ask): the first report of a loss,
+    at frame 18, asks for it at once."""
+    clean, lossy = layer_keys(face, 10 ** 6), layer_keys(face, 18)
+    assert clean[0] == lossy[0] == 0
+    assert not [k for k in clean if 0 < k < 25]
+    assert [k for k in lossy if 18 <= k <= 20]
