@@ -231,7 +231,8 @@ class SendSession:
         self._started = time.perf_counter()
         #: the newest loss report since the last call (None: none came), where the sink reads them
         self.feedback: Callable[[], Report | None] | None = None
-        self._link = LinkWatch()
+        #: what the receiver's reports say of the link; a simulated call gives it the call's own clock
+        self.link = LinkWatch()
         self.lean_frames = 0  # frames sent lean: without copies, on a link that lost nothing
         #: bits of the last frames sent, WINDOW seconds less a frame: what a paced face and the picture layer keep
         #: the stream within (the layer from the window as the frames before it spent it)
@@ -334,7 +335,7 @@ class SendSession:
                 self._pacing.hear(report)
                 if not self._pacing.done and self.picture is not None:  # a receiver that lacks the face joined
                     self._stop_layer()
-            if self._lean_layer and self.picture is not None and not self._link.lean:
+            if self._lean_layer and self.picture is not None and not self.link.lean:
                 self._stop_layer()  # the copies are back, and leave the layer too little
             elif self._lean_layer and self.picture is None and self._pacing is None:
                 self._start_layer()
@@ -376,10 +377,10 @@ class SendSession:
     def _start_layer(self) -> None:
         """The picture layer from the next frame on, where the call sends one and the link allows it
         (its window as the frames before it spent it)."""
-        if self._layer_rate is not None and (self._link.lean or not self._lean_layer):
+        if self._layer_rate is not None and (self.link.lean or not self._lean_layer):
             self._layer_counts = self._layer_counts or (0, 0)
             self.picture = PictureLayer(self._face, self.header, self._layer_rate, self._recent, self.sealed,
-                                        self.config.datagrams, self._parameter_costs[self._link.lean],
+                                        self.config.datagrams, self._parameter_costs[self.link.lean],
                                         None if self.datagrams is None else self._repeats_ahead)
 
     def _repeats_ahead(self, seq: int, count: int) -> np.ndarray:
@@ -417,15 +418,15 @@ class SendSession:
         if self.feedback is None or self.datagrams is None or self.sealer is not None:
             return None
         report = self.feedback()
-        self._link.hear(report)
-        lean = self._link.lean
+        self.link.hear(report)
+        lean = self.link.lean
         self.datagrams.copies = 0 if lean else self._copies
         self.encoder.frames_per_packet = self.config.frames_per_packet or (STREAM_FRAMES if lean else DATAGRAM_FRAMES)
         self.encoder.key_every = max(self._key_every, LEAN_KEYS if lean else 1)
-        self.datagrams.joined, self.datagrams.lean = self._link.heard, lean
+        self.datagrams.joined, self.datagrams.lean = self.link.heard, lean
         if self.picture is not None:
             self.picture.key_every = LEAN_KEY_EVERY if lean else KEY_EVERY
-            if report is not None and self._link.lost:
+            if report is not None and self.link.lost:
                 self.picture.key_soon()
         self.lean_frames += lean
         return report
