@@ -222,103 +222,110 @@ LAYER_PATTERNS = [("no loss", 0.0, "fixed", 1), ("random 5 %", 0.05, "fixed", 1)
                   ("bursts of 3, 5 %", 0.05, "fixed", 3), ("Gilbert-Elliott 10 %, bursts of 3", 0.10, "ge", 3)]
 
 
-def layer_call(clip: Path, kbps: float) -> tuple[list[bytes], object, list[np.ndarray]]:
-    """(datagrams, face, the clip's RGB frames) of fd-send's whole picture of ``clip`` at ``kbps`` over
-    datagrams, the picture layer on."""
+def layer_subject(clip: Path) -> tuple[object, list[np.ndarray]]:
+    """(face, RGB frames) of ``clip``: its face file beside it (``CLIP.fdface``), else enrolled from it."""
     import facedeform
-    from facedeform.sender.config import SendConfig
-    from facedeform.sender.session import SendSession
-    from facedeform.sender.sources import VideoSource
+    from facedeform.experiment.clips import read_video
 
     path = clip.with_suffix(".fdface")
-    face = facedeform.Face.load(str(path)) if path.exists() else facedeform.enroll(str(clip))
-    session = SendSession(str(clip), SendConfig(bitrate=1000 * kbps, embed_face=False, datagrams=True), face=face)
-    stream = [d for packets in session.packets() for d in packets]
-    return stream, face, [f[..., ::-1] for f in VideoSource(clip).frames()]
+    return facedeform.Face.load(str(path)) if path.exists() else facedeform.enroll(str(clip)), read_video(clip)
+
+
+def layer_session(clip: Path, face, kbps: float):
+    """fd-send's session of the whole picture of ``clip`` at ``kbps`` over datagrams, the picture layer on."""
+    from facedeform.sender.config import SendConfig
+    from facedeform.sender.session import SendSession
+
+    return SendSession(str(clip), SendConfig(bitrate=1000 * kbps, embed_face=False, datagrams=True), face=face,
+                       warn=lambda line: None)
+
+
+class DrawingReceiver:
+    """The library's receiver in process (its session and the library decoder's sink): what it draws of
+    each frame, by frame number."""
+
+    def __init__(self, face) -> None:
+        from facedeform.api import _Collect
+        from facedeform.receiver.session import ReceiveSession
+
+        self._images: list[np.ndarray] = []
+        self._session = ReceiveSession(lambda fps, size: [_Collect(self._images)], None, face.model,
+                                       warn=lambda line: None)
+        self._drawn: dict[int, np.ndarray] = {}
+
+    def handle(self, events: list) -> None:
+        before = len(self._images)
+        self._session.handle(events, time.perf_counter())
+        self._drawn.update(zip((e.seq for e in events if isinstance(e, Frame)), self._images[before:]))
+
+    def frames(self, count: int) -> list[np.ndarray | None]:
+        """The frames drawn of the first ``count`` (None: a frame never drawn)."""
+        return [self._drawn.get(seq) for seq in range(count)]
 
 
 def drawn_frames(kept: list[bytes], face, count: int) -> list[np.ndarray | None]:
     """What the library's receiver draws of each of ``count`` frames from the datagrams ``kept``, in
     order (None: a frame it never drew)."""
-    from facedeform.api import _Collect  # the library decoder's sink: keeps each frame drawn
-    from facedeform.receiver.session import ReceiveSession
-
-    images: list[np.ndarray] = []
-    session = ReceiveSession(lambda fps, size: [_Collect(images)], None, face.model, warn=lambda line: None)
-    drawn: list[np.ndarray | None] = [None] * count
-    decoder = DatagramDecoder()
+    receiver, decoder = DrawingReceiver(face), DatagramDecoder()
     for datagram in kept:
-        events = decoder.receive(datagram)
-        before = len(images)
-        session.handle(events, time.perf_counter())
-        for event, image in zip((e for e in events if isinstance(e, Frame)), images[before:]):
-            if event.seq < count:
-                drawn[event.seq] = image
-    return drawn
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    return float(10 * np.log10(255.0 ** 2 / max(np.mean((a.astype(np.float64) - b) ** 2), 1e-10)))
+        receiver.handle(decoder.receive(datagram))
+    return receiver.frames(count)
 
 
 def reported_call(clip: Path, face, kbps: float, lost: np.ndarray) -> list[np.ndarray | None]:
     """What the library's receiver draws of fd-send's whole picture of ``clip`` at ``kbps`` over datagrams
-    whose body datagrams ``lost`` (in order, the header's never) are dropped, the receiver reporting
-    to the sender as fd-recv does (experiment/reporting.py)."""
-    from facedeform.api import _Collect
+    whose body datagrams ``lost`` (in order, cycled; the header's never) are dropped, the receiver
+    reporting to the sender as fd-recv does (experiment/reporting.py)."""
     from facedeform.experiment.reporting import ReportingReceiver
-    from facedeform.receiver.session import ReceiveSession
-    from facedeform.sender.config import SendConfig
-    from facedeform.sender.session import SendSession
 
-    session = SendSession(str(clip), SendConfig(bitrate=1000 * kbps, embed_face=False, datagrams=True), face=face,
-                          warn=lambda line: None)
-    link = ReportingReceiver(session, session.header.fps)
-    images: list[np.ndarray] = []
-    receiver = ReceiveSession(lambda fps, size: [_Collect(images)], None, face.model, warn=lambda line: None)
-    drawn: dict[int, np.ndarray] = {}
-    sent = 0
-    for datagrams in session.packets():
-        for datagram in datagrams:
-            sent += 1
-            if sent > 1 and lost[(sent - 2) % len(lost)]:
-                continue
-            events = link.receive(datagram)
-            before = len(images)
-            receiver.handle(events, time.perf_counter())
-            drawn.update(zip((e.seq for e in events if isinstance(e, Frame)), images[before:]))
-    return [drawn.get(seq) for seq in range(session.frame_count)]
+    session = layer_session(clip, face, kbps)
+    link, receiver = ReportingReceiver(session, session.header.fps), DrawingReceiver(face)
+    for i, datagram in enumerate(d for datagrams in session.packets() for d in datagrams):
+        if not i or not lost[(i - 1) % len(lost)]:
+            receiver.handle(link.receive(datagram))
+    return receiver.frames(session.frame_count)
+
+
+def shown_psnr(drawn: list[np.ndarray | None], frames: list[np.ndarray]) -> np.ndarray:
+    """Per-frame PSNR (experiment.metrics.psnr_rgb, as fd-experiment's) of what a receiver shows: a frame
+    never drawn shows the one before it (the first: black)."""
+    from facedeform.experiment.metrics import psnr_rgb
+
+    shown, last = [], np.zeros_like(frames[0])
+    for image in drawn:
+        last = last if image is None else image
+        shown.append(last)
+    return psnr_rgb(frames, shown)
 
 
 def bench_layer(clips: list[Path], bitrates: list[float], seeds: int, reports: bool = False) -> None:
+    subjects = [(clip, *layer_subject(clip)) for clip in clips]
     print("| kbit/s | pattern | PSNR dB | 5th percentile | loss's cost, dB | frames > 1 dB under the loss-free call |")
     print("|---|---|---|---|---|---|")
     for kbps in bitrates:
-        calls = [layer_call(clip, kbps) for clip in clips]
-        clean = [[psnr(d, f) for d, f in zip(reported_call(clip, face, kbps, np.zeros(1, bool)) if reports else
-                                             drawn_frames(stream, face, len(frames)), frames)]
-                 for clip, (stream, face, frames) in zip(clips, calls)]
+        # without reports the sender cannot hear the loss: one call per clip, cut afterwards
+        streams = [None if reports else [d for packets in layer_session(clip, face, kbps).packets() for d in packets]
+                   for clip, face, _ in subjects]
+        clean: list[np.ndarray] = []  # per clip, from the first pattern: no loss
         for label, rate, kind, burst in LAYER_PATTERNS:
             means, fifths, costs, under = [], [], [], []
-            for clip, (stream, face, frames), base in zip(clips, calls, clean):
+            for c, ((clip, face, frames), stream) in enumerate(zip(subjects, streams)):
                 for seed in range(seeds if rate else 1):
                     rng = np.random.default_rng(seed)
-                    if reports:  # the sender hears the receiver: the call itself changes with the loss
-                        drawn = reported_call(clip, face, kbps, pattern_loss(4 * len(stream), rate, kind, burst, rng))
+                    if stream is None:  # the sender hears the receiver: the call itself changes with the loss
+                        drawn = reported_call(clip, face, kbps, pattern_loss(8 * len(frames), rate, kind, burst, rng))
                     else:
                         kept = arriving(stream, pattern_loss(len(stream), rate, kind, burst, rng),
                                         np.random.default_rng(seed + 1000) if rate else None, 0.05, 0.02)
                         drawn = drawn_frames(kept, face, len(frames))
-                    # a frame never drawn shows the one before it (the first: black)
-                    last = np.zeros_like(frames[0])
-                    scores = []
-                    for image, frame in zip(drawn, frames):
-                        last = last if image is None else image
-                        scores.append(psnr(last, frame))
-                    means.append(np.mean(scores))
+                    scores = shown_psnr(drawn, frames)
+                    if not rate:
+                        clean.append(scores)
+                    base = clean[c]
+                    means.append(scores.mean())
                     fifths.append(np.percentile(scores, 5))
-                    costs.append(np.mean(base) - np.mean(scores))
-                    under.append(100 * np.mean(np.array(scores) < np.array(base) - 1.0))
+                    costs.append(base.mean() - scores.mean())
+                    under.append(100 * np.mean(scores < base - 1.0))
             print(f"| {kbps:g} | {label} | {np.mean(means):.2f} | {np.mean(fifths):.2f} | {np.mean(costs):.2f} | "
                   f"{np.mean(under):.1f} % |", flush=True)
 
