@@ -21,7 +21,7 @@ from facedeform.protocol.quantise import QUALITIES, dequantise, steps_for
 
 MAGIC = b"FD"
 #: The one version written and read; a decoder refuses any other (docs/bitstream.md, "Evolution").
-VERSION = 18
+VERSION = 19
 MAX_NAMES = 64
 MAX_NAME = 32
 MAX_MODEL = 16 << 20  # bytes of pre-shared face model carried in-band

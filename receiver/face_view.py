@@ -173,6 +173,8 @@ class PictureView(FaceView):
         self._lids = Eyelids(face, self._scene.rest_pixels, self._picture_size)
         self._shut: tuple[float, ...] = (0.0, 0.0)  # how far each eye is closed (codec/render/eyelids.py)
         self._open = 1.0  # how open the mouth is, against the person's open mouth (codec/render/mouth_interior.py)
+        #: which of the mouth opening's triangles the renderer draws from the reference picture (SceneMesh.slivers)
+        self._slivers = np.zeros(len(self._scene.opening), bool)
         #: (frame, scene vertex positions, motion) of the last frames drawn: where the picture
         #: layer's video frames were, to carry them (:meth:`carry`)
         self._drawn: deque[tuple[int, np.ndarray, Motion]] = deque(maxlen=HELD)
@@ -255,6 +257,12 @@ class PictureView(FaceView):
         if opening != self._open and interior is not None:
             self._open = opening
             self._patch(0, self._scene.mouth_row, interior.drawn(opening))
+        slivers = self._scene.slivers(positions)
+        if not np.array_equal(slivers, self._slivers):
+            self._slivers = slivers
+            scene = self._scene
+            drawn = np.where(slivers[:, None], scene.shut, scene.triangles[scene.opening])
+            self._renderer.set_faces(scene.opening, drawn, scene.mouth_faces[scene.opening] & ~slivers)
         self._positions = positions
         self._drawn.append((self._seq, positions, motion))
 

@@ -216,6 +216,29 @@ def test_nearly_closed_mouth_shows_no_teeth():
     assert image[30:34, 20:44].max() < 60
 
 
+def test_faces_set_between_frames_change_what_and_how_they_draw():
+    verts, faces = lens(32, 32, 24, 14)
+    uv = verts[:, :2] / 64.0
+    texture = np.full((8, 8, 3), 200, np.uint8)
+    source = faces.copy()
+    renderer = Renderer(source, size=(64, 64), material=FLAT, lights=(), uv=uv, texture=texture,
+                        mouth_faces=np.ones(6, bool))
+    camera = pixel_camera(64, 64)
+    assert renderer.render(verts, camera)[0][32, 32].max() < 60  # the cavity
+    renderer.set_faces([2, 3], faces[[2, 3]], [False, False])  # the middle two drawn as skin, the texture
+    image = renderer.render(verts, camera)[0]
+    assert image[32, 32].min() == 200 and image[32, 12].max() < 60
+    renderer.set_faces([2, 3], faces[[3, 2]], [True, True])  # and back
+    assert renderer.render(verts, camera)[0][32, 32].max() < 60
+    np.testing.assert_array_equal(source, faces)  # the renderer's faces are its own
+    eyes = Renderer(faces, size=(64, 64), eye_faces=np.ones(6, bool))
+    for index, new, mouth in (([0], [[0, 1, 99]], [True]), ([6], faces[:1], [True]), ([0], faces[:1], [True, False])):
+        with pytest.raises(ValueError):
+            renderer.set_faces(index, new, mouth)
+    with pytest.raises(ValueError, match="eye"):
+        eyes.set_faces([0], faces[:1], [False])
+
+
 def test_eyes_have_dark_centres_and_light_corners():
     left, faces = lens(18, 32, 12, 6)
     right, _ = lens(46, 32, 12, 6)

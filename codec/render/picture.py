@@ -35,6 +35,14 @@ RING_DEPTH = 0.5
 #: fall-off starts at the face (neck and shoulders do not turn with it).
 HAIR_START = 1.3
 MOUTH_GAP = 4  # rows between the pictures and the open mouth below them in the texture
+#: A triangle of the mouth opening less than this many of the reference picture's pixels across (its
+#: smallest height) is drawn from the picture where it lies, the lips' line at rest, not as the open mouth
+#: or the cavity: such a sliver hits a pixel's centre here and there, and drew lips all but closed as a
+#: dashed black line that the tracker read as parted lips (lipnet_bbaf2n: the decoded mouth's swing 0.82
+#: of the speaker's with none, 0.91 / 0.88 / 0.89 with slivers below 1, 1.5 and 2.5 pixels;
+#: pcavs_Pose_Source 0.84, 0.84 / 0.85 / 0.83, its correlation 0.83 to 0.85 at 1.5). In the picture's
+#: pixels, not a drawing's: every view of a frame, whatever its size, draws the same mouth.
+SLIVER = 1.5
 #: The body (the picture below the chin, across its width: neck, shoulders, torso) moves by its own
 #: shift (BODY_PARAMS), fully from BODY_START face heights below the chin in the reference picture,
 #: rising smoothly (a smoothstep) from the chin; above the chin it does not move at all.
@@ -336,6 +344,10 @@ class SceneMesh:
         self.texture, self.uv = self.textured(picture.image)
         self.triangles = np.concatenate([face_triangles, strips]).astype(np.int32)
         self.mouth_faces = np.concatenate([mouth, np.zeros(len(strips), bool)])
+        #: the mouth opening's triangles (indices into :attr:`triangles`) and the same on the face's own
+        #: vertices, which the reference picture textures with its lips where they lie (:meth:`slivers`)
+        self.opening = np.flatnonzero(face.mouth_faces)
+        self.shut = faces[self.opening].astype(np.int32)
 
     def textured(self, image: np.ndarray, mouth: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(texture, (vertices, 2) uv with v up) that texture the scene by ``image``, a picture in the
@@ -359,6 +371,14 @@ class SceneMesh:
                                  mouth_points + [0.0, below]])
         height, width = atlas.shape[:2]
         return atlas, np.column_stack([placed[:, 0] / width, 1.0 - placed[:, 1] / height])
+
+    def slivers(self, positions: np.ndarray) -> np.ndarray:
+        """(opening,) bool: which of the mouth opening's triangles (:attr:`opening`) are slivers, less
+        than SLIVER of the reference picture's pixels across among :meth:`positions`."""
+        corners = positions[self.shut][..., :2]  # (k, 3, 2): the copies lie where the originals do
+        sides = np.roll(corners, -1, axis=1) - corners
+        area = np.abs(sides[:, 0, 0] * sides[:, 1, 1] - sides[:, 0, 1] * sides[:, 1, 0])
+        return area < SLIVER * np.sqrt((sides ** 2).sum(axis=2).max(axis=1))
 
     def pixels(self, positions: np.ndarray) -> np.ndarray:
         """(n, 2) pixels (x right, y down) of the face and ring vertices among :meth:`positions`."""

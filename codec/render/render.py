@@ -21,7 +21,7 @@ from facedeform.common.limits import MAX_SIDE
 
 from .camera import Camera
 from .face_parts import eye_components, eye_discs, eye_pieces, teeth_columns
-from .raster import EYE, MOUTH, SPEC_STEPS, draw, resolve
+from .raster import EYE, MOUTH, SKIN, SPEC_STEPS, draw, resolve
 
 
 def srgb_to_linear(values) -> np.ndarray:
@@ -115,7 +115,7 @@ class Renderer:
                 or not np.issubdtype(faces.dtype, np.integer) or faces.min() < 0:
             raise ValueError(f"faces must be a non-empty (m, 3) array of non-negative ints, "
                              f"got {faces.dtype} {faces.shape}")
-        self.faces = np.ascontiguousarray(faces, dtype=np.int32)
+        self.faces = np.array(faces, dtype=np.int32, order="C")  # its own: set_faces changes it
         self._min_vertices = int(faces.max()) + 1
         width, height = (int(s) for s in size)
         if not (0 < width <= MAX_SIDE and 0 < height <= MAX_SIDE):
@@ -194,6 +194,21 @@ class Renderer:
         if texture is None:
             raise ValueError("retexture needs a texture")
         self._uv, self._texture = self._parse_texture(uv, texture)
+
+    def set_faces(self, index, faces, mouth) -> None:
+        """Draw faces ``index`` as ``faces`` (k, 3) from the next frame on, each the mouth's interior where
+        ``mouth`` (k,) and skin elsewhere (a part drawn one way or another frame by frame: the mouth
+        opening's slivers, codec/render/picture.SceneMesh.slivers). Eye faces stay as they are."""
+        index, faces = np.asarray(index, dtype=np.int64), np.asarray(faces)
+        mouth = np.asarray(mouth, dtype=bool)
+        if faces.shape != (len(index), 3) or mouth.shape != index.shape or not np.issubdtype(faces.dtype, np.integer):
+            raise ValueError(f"faces must be ({len(index)}, 3) ints with a mouth flag each, got {faces.shape}")
+        if len(index) and (index.min() < 0 or index.max() >= len(self.faces) or (self._kind[index] >= EYE).any()):
+            raise ValueError("index must name faces of the mesh that are not an eye's")
+        if len(faces) and (faces.min() < 0 or faces.max() >= self._min_vertices):
+            raise ValueError(f"faces' vertices must be in 0..{self._min_vertices - 1}")
+        self.faces[index] = faces
+        self._kind[index] = np.where(mouth, MOUTH, SKIN)
 
     def set_background(self, background) -> None:
         """Draw over ``background`` from the next frame on: as the constructor's (a moving camera's picture)."""
