@@ -244,13 +244,15 @@ class DrawingReceiver:
     """The library's receiver in process (its session and the library decoder's sink): what it draws of
     each frame, by frame number."""
 
-    def __init__(self, face) -> None:
+    def __init__(self, face, counts=None) -> None:
         from facedeform.api import _Collect
         from facedeform.receiver.session import ReceiveSession
 
         self._images: list[np.ndarray] = []
         self._session = ReceiveSession(lambda fps, size: [_Collect(self._images)], None, face.model,
                                        warn=lambda line: None)
+        if counts is not None:  # the picture layer's losses go where the reports read them, as fd-recv's
+            self._session.counts = counts
         self._drawn: dict[int, np.ndarray] = {}
 
     def handle(self, events: list) -> None:
@@ -279,7 +281,8 @@ def reported_call(clip: Path, face, kbps: float, lost: np.ndarray) -> list[np.nd
     from facedeform.experiment.reporting import ReportingReceiver
 
     session = layer_session(clip, face, kbps)
-    link, receiver = ReportingReceiver(session, session.header.fps), DrawingReceiver(face)
+    link = ReportingReceiver(session, session.header.fps)
+    receiver = DrawingReceiver(face, link.decoder.stats)
     for i, datagram in enumerate(d for datagrams in session.packets() for d in datagrams):
         if not i or not lost[(i - 1) % len(lost)]:
             receiver.handle(link.receive(datagram))

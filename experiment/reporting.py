@@ -33,4 +33,4 @@ class ReportingReceiver:
             return None
         self._last = now
         stats = self.decoder.stats
-        return Report(self._heard, stats.repaired, stats.concealed, self.decoder.model_missing)
+        return Report(self._heard, stats.repaired, stats.concealed, self.decoder.model_missing, stats.layer_lost)

@@ -62,4 +62,7 @@ class Stats:
     skipped_bytes: int = 0
     concealed: int = 0
     repaired: int = 0
+    #: picture layer payloads found lost where they were due, counted by the receiver that draws them
+    #: (receiver.session): a payload lost whole leaves no trace in the packets that do arrive
+    layer_lost: int = 0
     reasons: list[str] = field(default_factory=list)

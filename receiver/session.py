@@ -15,7 +15,7 @@ from facedeform.common.cli import fitted
 from facedeform.common.errors import BitstreamError, InputError
 from facedeform.common.npz import NpzAppender
 from facedeform.common.stages import Sink, StreamSource, View
-from facedeform.protocol.stream import Damage, End, Frame, Header, Model, Picture
+from facedeform.protocol.stream import Damage, End, Frame, Header, Model, Picture, Stats
 from facedeform.receiver.face_cache import FaceCache
 from facedeform.receiver.face_view import PictureView, default_look, open_view, output_size
 
@@ -56,6 +56,9 @@ class ReceiveSession:
         self._view: View | None = None
         self._ratio = Fraction(1)
         self.source: StreamSource | None = None
+        #: the counters the picture layer's losses go into: the source's decoder's once :meth:`run` reads
+        #: one (its loss reports carry them to the sender), until then the session's own
+        self.counts = Stats()
         self.face_kind: str | None = None
         self.face_id: str | None = None
         self.frames = self.concealed = self.interpolated = self.written = self.layer_packets = 0
@@ -74,6 +77,7 @@ class ReceiveSession:
         arrived); a socket that went quiet ends with a warning instead.
         """
         self.source = source
+        self.counts = source.decoder.stats
         for events, arrived in source.batches():
             self.handle(events, arrived)
             if on_batch is not None:
@@ -130,6 +134,7 @@ class ReceiveSession:
         if view.layer.take(event.seq, event.data):
             self.layer_packets += 1
         else:
+            self.counts.layer_lost += 1
             self._warn(f"picture layer lost or damaged at frame {event.seq}: "
                        "the model's picture alone until its next key")
 
@@ -219,6 +224,7 @@ class ReceiveSession:
                            concealed=frame.concealed, interpolated=frame.interpolated)
         layered = self._layered(view)
         if layered is not None and not layered.advance(frame.params, frame.seq, exact=not frame.concealed):
+            self.counts.layer_lost += 1
             self._warn(f"picture layer lost at frame {frame.seq}: the model's picture alone until its next key")
         # output frames whose time falls in this frame's interval: 1 at the stream's rate
         repeats = math.ceil((frame.seq + 1) * self._ratio) - math.ceil(frame.seq * self._ratio)
@@ -250,6 +256,7 @@ class ReceiveSession:
         return {
             "frames": self.frames, "written": self.written, "concealed": self.concealed,
             "interpolated": self.interpolated, "picture_packets": self.layer_packets,
+            "picture_lost": self.counts.layer_lost,
             "damage_reports": s.damaged if s else 0, "packets": s.packets if s else 0,
             "duplicates": s.duplicates if s else 0, "skipped_bytes": s.skipped_bytes if s else 0,
             "ended": bool(self.source and self.source.decoder.ended),

@@ -180,7 +180,7 @@ class UdpSource:
         stats = self.decoder.stats
         try:
             self._sock.sendto(encode_report(Report(self._received, stats.repaired, stats.concealed,
-                                                   self.decoder.model_missing)), peer)
+                                                   self.decoder.model_missing, stats.layer_lost)), peer)
         except OSError:  # the way back is closed: the sender keeps its copies
             self._reports = False
 

@@ -9,7 +9,8 @@ random loss, a datagram every 4 s, each loss while lean would cost frames), fd-s
 two frames a datagram and a keyframe at every LEAN_KEYS-th of its places; the first report of a
 loss, or QUIET seconds without a report (the way back failed, or the receiver does not report),
 brings the copies and every keyframe back. A datagram lost while lean costs the frames up to the
-next keyframe, and the report of it, within REPORT_EVERY, ends the lean spell.
+next keyframe, and the report of it, within REPORT_EVERY, ends the lean spell. A picture layer
+payload lost counts as a loss too (the report's ``layer``): the session then asks the layer's next key.
 """
 
 import time

@@ -46,14 +46,18 @@ def test_a_lost_datagram_made_good_by_the_copies_counts_as_repaired_and_a_clean_
 
 
 def test_a_report_reads_back_and_anything_else_is_not_one():
-    report = Report(2 ** 32 + 7, 3, 12, 900)
+    report = Report(2 ** 32 + 7, 3, 12, 900, 4)
     data = encode_report(report)
-    assert len(data) == SIZE and parse_report(data) == Report(7, 3, 12, 900)
-    for junk in (b"", data[:-1], data + b"\0", b"FDLX" + data[4:], data[:4] + b"\x03" + data[5:]):
+    assert len(data) == SIZE and parse_report(data) == Report(7, 3, 12, 900, 4)
+    for junk in (b"", data[:-1], data + b"\0", b"FDLX" + data[4:], data[:4] + b"\x04" + data[5:]):
         assert parse_report(junk) is None
-    first = data[:4] + b"\x01" + data[5:-4]  # version 1 says nothing of the face
-    assert parse_report(first) == Report(7, 3, 12, None)
+    second = data[:4] + b"\x02" + data[5:-4]  # version 2 says nothing of the picture layer
+    first = data[:4] + b"\x01" + data[5:-8]  # version 1 nothing of the face either
+    assert parse_report(second) == Report(7, 3, 12, 900, 0) and parse_report(first) == Report(7, 3, 12, None)
+    for junk in (second[:4] + b"\x03" + second[5:], first[:4] + b"\x02" + first[5:]):
+        assert parse_report(junk) is None
     assert Report(3, 2 ** 32 - 1, 5).lost_since(Report(1, 2 ** 32 - 2, 5)) == 1  # counts wrap
+    assert Report(3, 1, 5, None, 2).lost_since(Report(1, 1, 5, None, 1)) == 1  # a picture payload lost
 
 
 def test_the_link_goes_lean_at_a_clean_report_and_back_at_a_loss_or_when_the_reports_stop():
@@ -282,3 +286,29 @@ def test_a_reported_loss_brings_the_picture_layer_s_next_key_forward(face):
     assert clean[0] == lossy[0] == 0
     assert not [k for k in clean if 0 < k < 25]
     assert [k for k in lossy if 18 <= k <= 20]
+
+
+def test_a_lost_picture_datagram_is_reported_and_brings_the_layer_s_key_at_once(face):
+    """Picture packets travel in datagrams of their own: a receiver that lost one, and nothing else,
+    counts it in its reports (protocol/report.py, version 3), and the sender sends the layer's next key
+    at once. Before, the frames arriving whole, the link looked clean and the layer stayed lost to the
+    end of the call (the clip's 3 s)."""
+    from facedeform.api import _Collect
+    from facedeform.experiment.reporting import ReportingReceiver
+    from facedeform.receiver.session import ReceiveSession
+
+    session = SendSession(str(CLIP), SendConfig(bitrate=10_000, datagrams=True, embed_face=False), face=face)
+    link = ReportingReceiver(session, session.header.fps)
+    drawing = ReceiveSession(lambda fps, size: [_Collect([])], None, face.model, warn=lambda line: None)
+    drawing.counts = link.decoder.stats  # as fd-recv's session counts into its source's decoder
+    dropped, keys = None, []
+    for datagrams in session.packets():
+        for datagram in datagrams:
+            if dropped is None and session.frame_count > 8 and packet_type(datagram[1]) == PICTURE:
+                dropped = session.frame_count
+                continue
+            events = link.receive(datagram)
+            keys += [e.seq for e in events if isinstance(e, Picture) and e.data[0] & 1]
+            drawing.handle(events, 0.0)
+    assert dropped is not None and drawing.counts.layer_lost > 0 and drawing.stats(1.0)["picture_lost"] > 0
+    assert keys[0] == 0 and [k for k in keys if dropped < k <= dropped + 12]
