@@ -271,7 +271,9 @@ class ReceiveSession:
 
     def summary(self, seconds: float) -> str:
         s = self.stats(seconds)
-        return (f"{s['frames']} frames rendered ({s['concealed']} concealed, {s['damage_reports']} damage reports), "
+        lost = f", {s['picture_lost']} picture layer payloads lost" if s["picture_lost"] else ""
+        return (f"{s['frames']} frames rendered ({s['concealed']} concealed, "
+                f"{s['damage_reports']} damage reports{lost}), "
                 f"{s['written']} written at {s['output_fps']:g} fps, {s['face']} face ({s['look']}), latency "
                 f"{s['latency_ms']['median']:.1f} ms median, {s['latency_ms']['max']:.1f} ms max, "
                 f"{s['frames_per_second']:.1f} frames/s" + _security_summary(s["security"]))

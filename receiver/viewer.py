@@ -43,6 +43,7 @@ th { text-align: left; font-weight: normal; color: #999; padding-right: 12px; }
 <table id="stats"><tr><th>waiting for the stream</th></tr></table>
 <script>
 const rows = [["frames", "frames"], ["concealed", "concealed"], ["damage reports", "damage_reports"],
+              ["picture layer lost", "picture_lost"],
               ["kbit/s", "kbit_per_s"], ["frame rate", "fps"], ["face", "face"],
               ["latency, median ms", s => s.latency_ms && s.latency_ms.median]];
 async function poll() {

@@ -311,4 +311,5 @@ def test_a_lost_picture_datagram_is_reported_and_brings_the_layer_s_key_at_once(
             keys += [e.seq for e in events if isinstance(e, Picture) and e.data[0] & 1]
             drawing.handle(events, 0.0)
     assert dropped is not None and drawing.counts.layer_lost > 0 and drawing.stats(1.0)["picture_lost"] > 0
+    assert f"{drawing.counts.layer_lost} picture layer payloads lost" in drawing.summary(1.0)
     assert keys[0] == 0 and [k for k in keys if dropped < k <= dropped + 12]
