@@ -275,8 +275,9 @@ class PictureLayer:
     def key_soon(self) -> None:
         """The receiver reported a loss: the next key goes as soon as the window has room for it, not at
         its time. A receiver that lost a packet of the layer draws the model's picture alone until then;
-        its reports count frames packets, not the layer's own datagrams, which the same link loses as
-        often (bench_loss.py layer --reports at 10 kbit/s: +0.2-0.3 dB under 5-10 % loss)."""
+        its reports count the layer's lost payloads beside the frames' (protocol/report.py, version 3;
+        bench_loss.py layer --reports at 10 kbit/s: 24.25 -> 25.15 dB at 5 % random loss, 24.79 -> 26.35
+        in bursts of 3, against the ask on the frames' losses alone)."""
         self._asked = True
 
     def close(self) -> None:
