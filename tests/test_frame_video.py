@@ -125,40 +125,6 @@ def test_a_frame_that_would_overrun_the_buffer_is_dropped_and_the_next_ones_stil
     assert sent == [0, 1, 2, 3, 5, 6]
 
 
-def adapting(frame: bytes) -> tuple[bool, bool]:
-    """(refresh_frame_context, frame_parallel_decoding_mode) of one shown 8-bit 4:2:0 VP9 frame, as its
-    uncompressed header says (the VP9 specification, 6.2), for a frame not error resilient."""
-    bits = vp9._Bits(frame)
-    assert bits.read(2) == 2 and bits.read(2) == 0 and bits.read(1) == 0
-    key, shown, resilient = bits.read(1) == 0, bits.read(1), bits.read(1)
-    assert shown and not resilient
-    if key:
-        assert bits.read(24) == 0x498342 and bits.read(3) != 7
-        bits.read(1 + 32)  # colour range, frame size
-    else:
-        bits.read(2 + 8 + 3 * 4)  # reset_frame_context, refresh_frame_flags, references and sign biases
-        if not any(bits.read(1) for _ in range(3)):  # found_ref: the size of none of them
-            bits.read(32)
-    if bits.read(1):  # render size different
-        bits.read(32)
-    if not key:
-        bits.read(1)  # allow_high_precision_mv
-        if not bits.read(1):  # interpolation filter not switchable
-            bits.read(2)
-    return bool(bits.read(1)), bool(bits.read(1))
-
-
-def test_every_frame_s_probabilities_adapt_to_the_frames_before_it():
-    """The layer's frames are decoded in order, so libvpx is told to let each frame's probabilities
-    adapt to the last ones' (frame parallel decoding off: +0.09 dB at 10 kbit/s on the dev crops)."""
-    still = frames(1, (64, 64))[0]
-    encoder = VideoEncoder((64, 64), 20_000, 4)
-    coded = [encoder.encode(frame, still, key=i == 0) for i, frame in enumerate(frames(4))]
-    grey_key = coded[0][2:2 + int.from_bytes(coded[0][:2], "big")]
-    for frame in [grey_key, coded[0][2 + len(grey_key):], *coded[1:]]:
-        assert adapting(frame) == (True, False)
-
-
 def test_the_frames_after_a_key_or_a_drop_are_never_dropped():
     """CALM frames after a key, and after a dropped frame, are kept however much they overrun: libvpx
     learns its frames' sizes only from those it keeps (else it drops every other frame)."""

@@ -31,11 +31,6 @@ LAST, GOLDEN, ALTREF = 1, 2, 4
 SLOTS = (LAST, GOLDEN, ALTREF)  # all three: what a key leaves holding the model's picture
 _FORCE_KEY, _KEEP_GOLDEN = 1, 1 << 22  # VPX_EFLAG_FORCE_KF, VP8_EFLAG_NO_UPD_GF
 _SET_REFERENCE, _CPU_USED, _DROP = 1, 13, 66  # VP8_SET_REFERENCE, VP8E_SET_CPUUSED, VP9E_SET_POSTENCODE_DROP
-#: VP9E_SET_FRAME_PARALLEL_DECODING, set off: each frame's probabilities adapt to the frames before it (libvpx
-#: keeps them fixed by default, so that a decoder may start a frame before the last one ends, which
-#: the layer never does: it decodes in order, and after a loss waits for a key anyway). On the nine dev
-#: crops +0.09 dB at 10 kbit/s (seven clips up) and +0.03 at 4, for 0.5 % fewer bits.
-_FRAME_PARALLEL = 35
 _I420, _REALTIME = 0x102, 1  # VPX_IMG_FMT_I420, VPX_DL_REALTIME
 _ENCODER_ABI, _DECODER_ABI = 39, 12  # libvpx 1.16's VPX_ENCODER_ABI_VERSION, VPX_DECODER_ABI_VERSION
 #: libvpx's speed in real time: its slower search (3) for videos of at most SLOW_PIXELS, else 5. On the
@@ -186,9 +181,8 @@ class Encoder(_Codec):
             raise Unavailable("libvpx's VP9 encoder did not open")
         self._open = True  # destroyed from here on, if the speed is refused too
         speed = SLOW if size[0] * size[1] <= SLOW_PIXELS else FAST
-        if lib.vpx_codec_control_(self._context, _CPU_USED, ctypes.c_int(speed)) != 0 or \
-                lib.vpx_codec_control_(self._context, _FRAME_PARALLEL, ctypes.c_uint(0)) != 0:
-            raise Unavailable("libvpx's VP9 encoder refused its speed or its probabilities' adaptation")
+        if lib.vpx_codec_control_(self._context, _CPU_USED, ctypes.c_int(speed)) != 0:
+            raise Unavailable("libvpx's VP9 encoder refused its speed")
         self.size, self._count, self._droppable = size, 0, False
 
     def set_reference(self, slot: int, planes: np.ndarray) -> None:
