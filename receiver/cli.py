@@ -170,11 +170,13 @@ class _Shown:
 
 def _linger(viewer, quiet: bool) -> None:
     """After a file or pipe's stream has ended, --serve keeps showing its last frame and statistics
-    until Ctrl-C (a call over --listen ends with the call)."""
-    if not quiet:
-        print(f"fd-recv: the stream has ended; {viewer.url} shows its last frame until Ctrl-C",
-              file=sys.stderr, flush=True)
+    until Ctrl-C (a call over --listen ends with the call). The line saying so is inside the wait: a
+    Ctrl-C that comes as soon as it is read (a loaded machine, the main thread not yet past the print)
+    still ends the wait, not the program with 130."""
     try:
+        if not quiet:
+            print(f"fd-recv: the stream has ended; {viewer.url} shows its last frame until Ctrl-C",
+                  file=sys.stderr, flush=True)
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:
