@@ -219,7 +219,7 @@ def test_the_live_rate_leaves_out_what_came_before_the_first_frame():
 
 
 def test_a_ctrl_c_while_the_end_is_being_said_still_ends_the_wait_cleanly(capsys):
-    """Ctrl-C as soon as the stream's end is said (the test above, on a loaded machine, sent it before
+    """Ctrl-C as soon as the stream's end is said (the test below, on a loaded machine, sent it before
     fd-recv's main thread was past its print, and fd-recv exited 130): the wait ends, nothing raised."""
     from facedeform.receiver.cli import _linger
 
