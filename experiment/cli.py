@@ -129,7 +129,8 @@ def _run(args) -> int:
         partial.replace(row_file(task))  # whole or absent: a crash never leaves half a row
         say(f"fd-experiment: [{count}/{len(todo)}] {row['clip']} {row['size']} {row['codec']} {row['setting']}: "
             f"{row['bitrate_bps'] / 1000:.2f} kbit/s, PSNR {row['psnr']:.2f} dB, VMAF {row['vmaf']:.1f}, "
-            f"mouth AKD {row['mouth_akd']:.4f}")
+            f"mouth AKD {row['mouth_akd']:.4f}"
+            + (f", costliest 2 s {row['costliest_2s_bps'] / 1000:.2f} kbit/s" if "costliest_2s_bps" in row else ""))
     rows = sorted((json.loads(row_file(t).read_text()) for t in tasks),
                   key=lambda r: (r["clip"], r["size"], r["codec"], r["bitrate_bps"]))
     write_rows(rows, args.out)

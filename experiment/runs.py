@@ -5,6 +5,7 @@ row's bytes are the bytes of the stream file the sender wrote; a baseline's
 are those of its elementary stream file. Both files stay in the work folder.
 """
 
+import json
 import subprocess
 import sys
 import time
@@ -75,8 +76,8 @@ def run_ours(clip: Clip, setting: str, layout: str, work: Path, own_face: bool =
     face = ["--face", str(enroll(clip, work))] if own_face else []
     rate = ["--level", setting[1:]] if setting.startswith("l") else ["--bitrate", setting[:-1]]
     started = time.perf_counter()
-    _tool("facedeform.sender.cli", str(clip.path), *rate, "--params", layout,
-          "--send-every", str(every), "-o", str(stream), "-q", *(face + ["--face-by-id"] if own_face else []))
+    sent = _tool("facedeform.sender.cli", str(clip.path), *rate, "--params", layout, "--send-every", str(every),
+                 "-o", str(stream), "--json", *(face + ["--face-by-id"] if own_face else []))
     encode_s = time.perf_counter() - started
     started = time.perf_counter()
     decoded = receive(stream, size, face[1:])
@@ -91,7 +92,9 @@ def run_ours(clip: Clip, setting: str, layout: str, work: Path, own_face: bool =
            "look": "picture" if own_face else "shaded",
            "frames": n, "fps": clip.fps, "stream_bytes": len(data) - header,
            "oneoff_bytes": header + (Path(face[1]).stat().st_size if own_face else 0),
-           "encode_fps": n / encode_s, "decode_fps": n / decode_s}
+           "encode_fps": n / encode_s, "decode_fps": n / decode_s,
+           # what the rate control keeps within 10 % of the rate asked for (fd-send's own count)
+           "costliest_2s_bps": 1000 * json.loads(sent.stderr.splitlines()[-1])["costliest_2s_kbit_per_s"]}
     return {**row, **rates(row), **measure(clip, decoded)}, decoded
 
 
@@ -100,7 +103,7 @@ def receive(stream: Path, size: int, face: list) -> list:
     model (``face``: [path]), the shaded generic face without one ([])."""
     look = ["--look", "picture"] if face else []
     return read_y4m(_tool("facedeform.receiver.cli", str(stream), "-o", "-", "--size", str(size), "-q",
-                          *(["--face", *face] if face else []), *look))
+                          *(["--face", *face] if face else []), *look).stdout)
 
 
 def run_baseline(clip: Clip, codec: str, setting: int, work: Path) -> tuple[dict, list]:
@@ -124,10 +127,11 @@ def rates(row: dict) -> dict:
     return {"bitrate_bps": per_frame, "bitrate_oneoff_bps": per_frame + 8 * row["oneoff_bytes"] * row["fps"] / SEQUENCE}
 
 
-def _tool(module: str, *args: str) -> bytes:
-    """Runs one of our command-line tools; its one-line error becomes an FdError here."""
+def _tool(module: str, *args: str) -> subprocess.CompletedProcess:
+    """Runs one of our command-line tools (its output and its stderr, as bytes); its one-line error
+    becomes an FdError here."""
     done = subprocess.run([sys.executable, "-m", module, *args], capture_output=True)
     if done.returncode != 0:
         lines = done.stderr.decode(errors="replace").strip().splitlines() or [f"{module} failed"]
         raise FdError(lines[-1])
-    return done.stdout
+    return done

@@ -61,6 +61,15 @@ BURST = 0.15
 #: clip up at 4; the costliest 2-second window at 4 kbit/s 1.077, at 10 1.057), 0.6 +0.19 / +0.12 but its 5th
 #: percentile 0.15 dB lower at 4 and its costliest window 1.126 (pcavs_Pose_Source), past the 1.10 allowed.
 HEADROOM = 0.8
+#: A coded video frame larger than the window's room by more than this share of the window (of the 0.1
+#: the rate allows above it, the rest left to the parameters' bursts) is not sent, and the next video frame
+#: goes as a key (libvpx has moved on to the frame not sent). libvpx's frame sizes are not bounded: with
+#: its buffer full it codes a frame that changes much at a fine quantiser, and frames of 2.7-5 times the
+#: usual one had taken the costliest 2-second window on the nine dev crops to 1.37 times the rate at 3
+#: kbit/s (sadtalker_WDA_KatieHill) and 1.13 at 5 (pcavs_Pose_Source). Half a usual frame instead cost the
+#: crops 0.13 and 0.16 dB at 4 and 10 kbit/s (each key starts again from the model's picture), 0.05 of
+#: the window 0.04 at 4 (docs/picture_layer.md).
+OVERRUN = 0.08
 PARAMETER_MEMORY = 25  # frames over which the parameters' bits are averaged
 BLOCKS_SHARE = 0.1  # of the layer's rate, for payloads of blocks only between video frames
 #: A block goes back to the model between video frames only if the model's picture is this
@@ -196,6 +205,7 @@ class PictureLayer:
         self.key_every: float | None = KEY_EVERY if datagrams else None
         self._last_key: int | None = None
         self._asked = False  # a key asked for before its time (:meth:`key_soon`)
+        self._restart = False  # a coded frame was not sent (OVERRUN): the next video frame is a key
         self._last_video: int | None = None  # the last frame a video frame went with
         self._last: int | None = None  # the last frame stepped
         self.packets = self.bits = 0
@@ -229,7 +239,7 @@ class PictureLayer:
         self._credit = min(self._credit + share, BURST * share * self._fps)
         due = self._last_video is None or seq - self._last_video >= self._every
         if due and (key or (not waiting and self._credit >= 0 and room >= HEADROOM * self._size)):
-            packets = self._send(seq, self._sized(frame_bgr), params, model, key, encoder)
+            packets = self._send(seq, self._sized(frame_bgr), params, model, key or self._restart, encoder, room)
         elif self._layer.frame is not None and min(self._saved, room) >= 8 * (PACKING + 4):
             rgb = self._looked(self._sized(frame_bgr))
             favour = self._favour()
@@ -295,9 +305,10 @@ class PictureLayer:
         return cv2.cvtColor(shrunk(bgr, self._look.size), cv2.COLOR_BGR2RGB)
 
     def _send(self, seq: int, bgr: np.ndarray, params: np.ndarray, model: np.ndarray, key: bool,
-              encoder: PacketEncoder) -> list[bytes]:
+              encoder: PacketEncoder, room: float) -> list[bytes]:
         """The packets of a video frame (a key if ``key``) for frame ``seq`` of parameters ``params``,
-        coded from the model's picture of it (codec/render/frame_video.VideoEncoder)."""
+        coded from the model's picture of it (codec/render/frame_video.VideoEncoder), if the window's
+        ``room`` (bits) can hold it (OVERRUN)."""
         favour, looked = self._favour(), self._looked(bgr)
         small = shrunk(looked, self._video_size)  # (from the choice's size: at 1080p 1 ms, from the frame's 4)
         drawn = self._look.size == drawn_size(self.size, self._video_size)  # the picture it is coded from
@@ -308,6 +319,10 @@ class PictureLayer:
         video = self._encoder.encode(small, reference, key)
         if not video:  # dropped by libvpx: the next frame is tried instead
             return []
+        if self._last_key is not None and 8 * len(video) > room + OVERRUN * self._window_bits:
+            self._restart = True
+            return []
+        self._restart = False
         data = self._layer.make(seq, video, key, model, self._look.carry, lambda parts, still, before:
                                 choose_payload(parts, still, looked, before, favour=favour, shrink=self._shrink),
                                 reference, reference if drawn else None)

@@ -87,6 +87,8 @@ def test_our_rates_are_the_stream_file_and_the_one_off_bytes(results):
     per_frame = 8 * (len(data) - header) * 25 / 50
     np.testing.assert_allclose(row["bitrate_bps"], per_frame)
     np.testing.assert_allclose(row["bitrate_oneoff_bps"], per_frame + 8 * (header + model) * 25 / 250)
+    # a 2-second clip is one window: the costliest is the whole stream after its header
+    assert row["costliest_2s_bps"] == pytest.approx(per_frame, rel=0.02)
 
 
 @pytest.mark.slow
