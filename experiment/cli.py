@@ -16,7 +16,8 @@ EPILOG = """examples:
 
 Writes one file per run in <out>/rows/ as it finishes (run again with the same
 --out to resume: finished runs are not redone), then results.csv and
-results.json (one row per run), table.md (ours at fd-send's default level if
+results.json (one row per run; ours with the rate of its costliest 2 seconds,
+costliest_2s_bps, which fd-send keeps within 10 % of --bitrate), table.md (ours at fd-send's default level if
 run, else at our lowest rate, against each baseline at its floor and at about
 3 times it), a plot per measure and size
 (<measure>_<size>.png, overview_<size>.png) and per clip and size a
