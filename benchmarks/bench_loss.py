@@ -242,7 +242,8 @@ def layer_session(clip: Path, face, kbps: float):
 
 class DrawingReceiver:
     """The library's receiver in process (its session and the library decoder's sink): what it draws of
-    each frame, by frame number."""
+    each frame, by frame number (its k-th picture is of the k-th frame decoded: it draws them in order,
+    some once the picture layer's next video frame has come)."""
 
     def __init__(self, face, counts=None) -> None:
         from facedeform.api import _Collect
@@ -253,16 +254,17 @@ class DrawingReceiver:
                                        warn=lambda line: None)
         if counts is not None:  # the picture layer's losses go where the reports read them, as fd-recv's
             self._session.counts = counts
-        self._drawn: dict[int, np.ndarray] = {}
+        self._seqs: list[int] = []
 
     def handle(self, events: list) -> None:
-        before = len(self._images)
+        self._seqs += [e.seq for e in events if isinstance(e, Frame)]
         self._session.handle(events, time.perf_counter())
-        self._drawn.update(zip((e.seq for e in events if isinstance(e, Frame)), self._images[before:]))
 
     def frames(self, count: int) -> list[np.ndarray | None]:
-        """The frames drawn of the first ``count`` (None: a frame never drawn)."""
-        return [self._drawn.get(seq) for seq in range(count)]
+        """The frames drawn of the first ``count`` (None: a frame never drawn), the call having ended."""
+        self._session.close()
+        drawn = dict(zip(self._seqs, self._images))
+        return [drawn.get(seq) for seq in range(count)]
 
 
 def drawn_frames(kept: list[bytes], face, count: int) -> list[np.ndarray | None]:

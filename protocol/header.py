@@ -21,7 +21,7 @@ from facedeform.protocol.quantise import QUALITIES, dequantise, steps_for
 
 MAGIC = b"FD"
 #: The one version written and read; a decoder refuses any other (docs/bitstream.md, "Evolution").
-VERSION = 19
+VERSION = 20
 MAX_NAMES = 64
 MAX_NAME = 32
 MAX_MODEL = 16 << 20  # bytes of pre-shared face model carried in-band
@@ -40,7 +40,13 @@ _FLAG_SHIPPED = 16
 #: The in-band model starts with a preview face of ``preview_size`` bytes, a varint after ``model_size``
 #: (a paced face, sender/face_pacing.py); a stream without one is written as before, byte for byte.
 _FLAG_PREVIEW = 32
-_FLAGS = _FLAG_F3_WITH_JAW | _FLAG_STATIC | _FLAG_BASIS | _FLAG_LEVEL_STEPS | _FLAG_SHIPPED | _FLAG_PREVIEW
+#: A byte after the preview's size: ``ahead``, how many frames a receiver waits for the picture layer's
+#: next video frame (a stream without a picture layer, or that draws it from the past alone, writes none).
+_FLAG_AHEAD = 64
+_FLAGS = (_FLAG_F3_WITH_JAW | _FLAG_STATIC | _FLAG_BASIS | _FLAG_LEVEL_STEPS | _FLAG_SHIPPED | _FLAG_PREVIEW
+          | _FLAG_AHEAD)
+#: Frames a picture may wait for the layer's next video frame: fewer than the layer holds (frame_video.HELD).
+MAX_AHEAD = 50
 ID_BYTES = 4  # of a header's id, which every keyframe packet carries
 
 
@@ -59,6 +65,8 @@ class Header:
     until the whole model has come; 0: none);
     width, height: the source's frame size in pixels (0: not given), the receiver's default
     output size; rule: the deformation rule the sender assumed, one of :data:`RULES`;
+    ahead: frames (at most MAX_AHEAD) that a frame between two of the picture layer's video frames
+    waits for the next one, which it is then drawn from as well (0: from the last alone);
     basis: (k, k) int8 coding axes (``protocol.basis``) or None: the coded values are then
     coordinates along the axes, in steps, instead of one value per parameter.
 
@@ -81,6 +89,7 @@ class Header:
     height: int = 0
     rule: str = RULES[0]
     preview_size: int = 0
+    ahead: int = 0
 
     def __post_init__(self) -> None:
         names, steps = self.names, np.asarray(self.steps, dtype=np.float64)
@@ -91,7 +100,8 @@ class Header:
         if not (0 < self.fps <= 1000 and 1 <= self.key_interval <= MAX_KEY_INTERVAL
                 and 1 <= self.divisor <= MAX_DIVISOR and 0 <= self.model_size <= MAX_MODEL
                 and 0 <= self.quality <= 255 and 0 <= self.width <= MAX_SIDE and 0 <= self.height <= MAX_SIDE
-                and (self.preview_size == 0 or 0 < self.preview_size < self.model_size)):
+                and (self.preview_size == 0 or 0 < self.preview_size < self.model_size)
+                and 0 <= self.ahead <= MAX_AHEAD):
             raise ValueError("header field out of range")
         if self.rule not in RULES:
             raise ValueError(f"unknown deformation rule {self.rule!r} (one of {', '.join(RULES)})")
@@ -159,12 +169,15 @@ def encode_header(h: Header) -> bytes:
     level, held = _level_steps(h), shipped_index(h.names, h.basis)
     written = h.basis is not None and held is None
     flags = (_FLAG_F3_WITH_JAW * h.f3_with_jaw | _FLAG_STATIC * h.skip_static | _FLAG_BASIS * written
-             | _FLAG_LEVEL_STEPS * level | _FLAG_SHIPPED * (held is not None) | _FLAG_PREVIEW * bool(h.preview_size))
+             | _FLAG_LEVEL_STEPS * level | _FLAG_SHIPPED * (held is not None) | _FLAG_PREVIEW * bool(h.preview_size)
+             | _FLAG_AHEAD * bool(h.ahead))
     out = bytearray(MAGIC + bytes([VERSION, flags, h.quality, h.key_interval, h.divisor, RULES.index(h.rule)]))
     out += varint(round(h.fps * 1000)) + varint(h.width) + varint(h.height)
     out += bytes.fromhex(h.face_id) + varint(h.model_size)
     if h.preview_size:
         out += varint(h.preview_size)
+    if h.ahead:
+        out.append(h.ahead)
     if held is not None:
         out.append(held)
     else:
@@ -201,6 +214,11 @@ def parse_header(body: bytes) -> Header:
         preview_size, pos = _varint(body, pos, MAX_MODEL)
         if not preview_size:  # written only when there is one: the same header would be written otherwise
             raise BitstreamError("stream header announces a preview of 0 bytes")
+    ahead = 0
+    if flags & _FLAG_AHEAD:
+        ahead, pos = _byte(body, pos), pos + 1
+        if not 0 < ahead <= MAX_AHEAD:
+            raise BitstreamError(f"stream header asks pictures to wait {ahead} frames (1 to {MAX_AHEAD})")
     basis: np.ndarray | None = None
     if flags & _FLAG_SHIPPED:
         index, table = _byte(body, pos), shipped()
@@ -227,7 +245,7 @@ def parse_header(body: bytes) -> Header:
     try:
         return Header(fps_milli / 1000, tuple(names), steps, face_id, bool(flags & _FLAG_F3_WITH_JAW), quality,
                       key_interval, divisor, bool(flags & _FLAG_STATIC), model_size, basis,
-                      width, height, RULES[rule], preview_size)
+                      width, height, RULES[rule], preview_size, ahead)
     except ValueError as exc:
         raise BitstreamError(f"stream header: {exc}") from None
 

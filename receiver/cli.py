@@ -24,7 +24,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         prog="fd-recv", epilog=EPILOG,
         description="Decode an fd stream and render the face it carries: the face mesh is deformed "
                     "by each frame's parameters and drawn with a Z-buffer and Phong shading, with the "
-                    "person's own texture when their face model is known.")
+                    "person's own texture when their face model is known. A stream with a picture layer "
+                    "(fd-send --bitrate with a face's reference picture) may have a frame wait for the "
+                    "layer's next video frame, to be drawn from both (at most fd-send --ahead).")
     p.add_argument("input", nargs="?", help="stream file, or - for stdin (default)")
     p.add_argument("--listen", metavar="URL",
                    help="receive from the network instead: udp://HOST:PORT (one packet per datagram) or "

@@ -167,7 +167,7 @@ class PictureView(FaceView):
                                   uv=self._scene.uv, texture=self._scene.texture, mouth_faces=self._scene.mouth_faces)
         self._camera = _picture_camera(size)
         self._seq = -1
-        self.layer = VideoLayer(self._picture_size)
+        self.layer = VideoLayer(self._picture_size, self._made[0].ahead)
         self._lips = mouth_vertices(face)
         self._positions: np.ndarray | None = None  # the scene's vertices in the last picture drawn
         self._lids = Eyelids(face, self._scene.rest_pixels, self._picture_size)
@@ -178,6 +178,9 @@ class PictureView(FaceView):
         #: (frame, scene vertex positions, motion) of the last frames drawn: where the picture
         #: layer's video frames were, to carry them (:meth:`carry`)
         self._drawn: deque[tuple[int, np.ndarray, Motion]] = deque(maxlen=HELD)
+        #: the same of frames not drawn yet (:meth:`expect`): where a video frame the layer draws the frames
+        #: before it from was
+        self._expected: deque[tuple[int, np.ndarray, Motion]] = deque(maxlen=HELD)
         self._carrier: Renderer | None = None  # the scene textured by a video frame
         self._carried: tuple[np.ndarray, int] | None = None  # (the video frame it is textured by, its frame)
         self._carried_motion: tuple[Motion, Motion] | None = None  # (then, now) of the carrier's background
@@ -185,10 +188,10 @@ class PictureView(FaceView):
         #: asks for the same one twice in a frame (to choose the blocks, then to draw)
         self._carry_last: tuple[np.ndarray, int, tuple, np.ndarray] | None = None
         self._reference: PictureView | None = None  # draws the model's picture a video frame is coded from
-        #: (frame, parameters, the model's picture, the same at the video's size) drawn to decode a video
-        #: frame, which :meth:`render` then draws over instead of drawing it again (a view of the
-        #: picture's own size)
-        self._ahead: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
+        #: (frame, parameters, the model's picture, the same at the video's size, its entry of _drawn) drawn
+        #: to decode a video frame, which :meth:`render` then draws over instead of drawing it again (a
+        #: view of the picture's own size): the last, and those after frames still waiting to be drawn
+        self._decoded: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray, tuple]] = deque(maxlen=HELD)
 
     def advance(self, params: np.ndarray, seq: int, exact: bool = True) -> bool:
         """Decodes the picture layer's payloads of frame ``seq`` (before :meth:`render` draws it, and
@@ -201,11 +204,18 @@ class PictureView(FaceView):
         that size (kept for :meth:`render`): the drawing is the same whatever was drawn before (a
         receiver's reference view draws only the video's frames)."""
         if self.size != drawn_size(self._picture_size, size):
+            self.expect(params, seq)
             return self.reference_picture(params, seq, size)
         model = self.model_picture(params, seq)
         small = shrunk(model, size)
-        self._ahead = seq, params.copy(), model, small
+        self._decoded.append((seq, params.copy(), model, small, self._drawn[-1]))
         return small
+
+    def expect(self, params: np.ndarray, seq: int) -> None:
+        """Where the scene is in frame ``seq`` (parameters ``params``), not drawn yet: the picture layer
+        draws the frames before a video frame from it too (frame_video.VideoLayer.draw)."""
+        positions, motion, _ = self._placed(self._full(params))
+        self._expected.append((seq, positions, motion))
 
     def reference_picture(self, params: np.ndarray, seq: int, size: tuple[int, int]) -> np.ndarray:
         """The model's picture of frame ``seq`` at ``size`` (w, h): what the layer's video frame of ``seq``
@@ -223,9 +233,14 @@ class PictureView(FaceView):
         the tracked face itself), placed by the parameters' head pose and global motion."""
         seq = self._seq + 1 if seq is None else seq
         self.advance(params, seq)  # a payload not yet decoded (the receiver's session decodes first)
-        ahead, self._ahead = self._ahead, None
-        if shape is None and ahead is not None and ahead[0] == seq and np.array_equal(ahead[1], params):
-            return self.layer.draw(seq, ahead[2], self.carry, ahead[3])  # drawn for the video frame, placed last
+        decoded = self._decoded
+        while decoded and decoded[0][0] < seq:
+            decoded.popleft()
+        if shape is None and decoded and decoded[0][0] == seq and np.array_equal(decoded[0][1], params):
+            _, _, model, small, entry = decoded.popleft()
+            self._seq, self._positions = seq, entry[1]
+            self._drawn.append(entry)  # placed last again, for the carry
+            return self.layer.draw(seq, model, self.carry, small)
         return self.layer.draw(seq, self.model_picture(params, seq, shape), self.carry)
 
     def model_picture(self, params: np.ndarray, seq: int | None = None, shape: np.ndarray | None = None
@@ -290,8 +305,9 @@ class PictureView(FaceView):
     def _carry(self, video: np.ndarray, since: int, drawn: tuple[int, np.ndarray, Motion]) -> np.ndarray:
         (pw, ph), (vw, vh) = self._picture_size, video.shape[1::-1]
         _, now, now_motion = drawn
-        # (a frame not drawn here, its parameters lost: the video as it is)
-        _, then, then_motion = next((d for d in reversed(self._drawn) if d[0] == since), self._drawn[-1])
+        # (a frame neither drawn here nor expected, its parameters lost: the video as it is)
+        _, then, then_motion = next((d for d in reversed(self._drawn) if d[0] == since), None) or next(
+            (d for d in reversed(self._expected) if d[0] == since), drawn)
         if then is now:  # the video's own frame: nothing to carry
             return video
         scale = np.array([vw / pw, vh / ph, np.sqrt(vw * vh / (pw * ph))])

@@ -1,4 +1,5 @@
-"""One receiving session: decoded events in, frames rendered and written as soon as each packet is complete."""
+"""One receiving session: decoded events in, frames rendered and written as soon as each packet is complete
+(or, where the stream's picture layer draws a frame from its next video frame too, as soon as that is)."""
 
 import math
 import sys
@@ -69,6 +70,9 @@ class ReceiveSession:
         self.latency_max = 0.0
         self._dump_path = dump
         self._dump: NpzAppender | None = None
+        #: (frame, parameters, output frames it makes, its packet's arrival) of frames decoded, not yet
+        #: drawn: the picture layer's next video frame is awaited (header.ahead, VideoLayer.ready)
+        self._waiting: deque[tuple[int, np.ndarray, int, float]] = deque()
 
     def run(self, source: StreamSource, on_batch=None) -> None:
         """Consumes ``source`` (receiver.transport) to its end; ``on_batch()`` after each arrival.
@@ -96,6 +100,7 @@ class ReceiveSession:
         source = self.source
         if source is None:
             raise RuntimeError("finish() before a source was read")
+        self._draw_waiting()
         if source.decoder.header is None:
             raise BitstreamError(source.no_stream())
         if source.decoder.header.preview_size and self.face_kind in ("generic", "preview"):
@@ -192,6 +197,7 @@ class ReceiveSession:
         self._show(face, "stream")
 
     def _show(self, face: BaseFace, kind: str, check_id: bool = True) -> View:
+        self._draw_waiting()  # with the view that decoded them
         look = self._look or default_look(face)
         if not check_id and face.picture is None and look == "picture":
             look = "shaded"  # the in-band model was lost, and its picture with it
@@ -228,24 +234,41 @@ class ReceiveSession:
             self._warn(f"picture layer lost at frame {frame.seq}: the model's picture alone until its next key")
         # output frames whose time falls in this frame's interval: 1 at the stream's rate
         repeats = math.ceil((frame.seq + 1) * self._ratio) - math.ceil(frame.seq * self._ratio)
-        if not repeats:
-            return
-        image = view.render(frame.params, frame.seq)
-        for _ in range(repeats):
-            for sink in self._sinks:
-                sink.write(image)
-        self.written += repeats
-        took = time.perf_counter() - arrived
-        self.latency.append(took)
-        self.latency_max = max(self.latency_max, took)
+        self._waiting.append((frame.seq, frame.params, repeats, arrived))
+        self._draw_waiting(frame.seq)
+
+    def _draw_waiting(self, latest: int | None = None) -> None:
+        """Draws and writes the frames waiting that can be drawn now that frame ``latest`` has been
+        decoded (None: all of them, the stream having ended or its view changing)."""
+        view = self._view
+        layer = None if view is None or (layered := self._layered(view)) is None else layered.layer
+        while self._waiting:
+            seq, params, repeats, arrived = self._waiting[0]
+            if latest is not None and layer is not None and not layer.ready(seq, latest):
+                return
+            self._waiting.popleft()
+            if not repeats or view is None:
+                continue
+            image = view.render(params, seq)
+            for _ in range(repeats):
+                for sink in self._sinks:
+                    sink.write(image)
+            self.written += repeats
+            took = time.perf_counter() - arrived
+            self.latency.append(took)
+            self.latency_max = max(self.latency_max, took)
 
     def close(self) -> None:
-        """Closes the sinks and finishes the dump (none is written if no frame arrived)."""
-        for sink in self._sinks:
-            sink.close()
-        if self._dump is not None:
-            dump, self._dump = self._dump, None
-            dump.close({"names": np.array(self._header.names), "fps": self._header.fps})
+        """Writes the frames still waiting, closes the sinks and finishes the dump (none is written if no
+        frame arrived)."""
+        try:
+            self._draw_waiting()
+        finally:
+            for sink in self._sinks:
+                sink.close()
+            if self._dump is not None:
+                dump, self._dump = self._dump, None
+                dump.close({"names": np.array(self._header.names), "fps": self._header.fps})
 
     def stats(self, seconds: float) -> dict:
         """Frames decoded, written, concealed and interpolated, decoder counters, latency in ms;

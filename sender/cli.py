@@ -110,6 +110,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                            f"--face from fd-enroll (its own motion basis) the finest level that codes the speaker's "
                            f"first second within {100 * LEVEL_SHARE:g} %% of {SPEAKER_RATE / 1000:g} kbit/s, with a "
                            f"dead zone widened where the call later costs more")
+    p.add_argument("--ahead", type=number(*LIMITS["ahead"]), default=default("ahead"), metavar="SECONDS",
+                   help="with the picture layer, how long fd-recv may hold a frame for the layer's next video "
+                        "frame, to draw the frames between two of them from both instead of from the last "
+                        f"alone ({_span('ahead')}; default %(default)s): the picture between video frames no "
+                        "longer drifts, at up to this much more latency; 0: each frame drawn as it arrives")
     p.add_argument("--dead-zone", type=number(*LIMITS["dead_zone"]), default=default("dead_zone"), metavar="STEPS",
                    help="a parameter is resent only once it is this many quantiser steps from what the "
                         f"receiver shows ({_span('dead_zone')}; default %(default)s): tracker jitter below it costs "
@@ -195,7 +200,7 @@ def _run(args) -> int:
                         dead_zone=args.dead_zone, bitrate=None if args.bitrate is None else 1000 * args.bitrate,
                         basis=not args.no_basis, divisor=args.send_every,
                         datagrams=args.output.startswith("udp://"), redundancy=args.redundancy, rule=args.rule,
-                        quality=args.quality, paced_face=args.paced_face)
+                        quality=args.quality, paced_face=args.paced_face, ahead=args.ahead)
     if face is not None and config.bitrate is not None and config.picture_layer:
         from facedeform.codec.render.render import WARMING_UP, warm_up
         from facedeform.common.progress import slow_step

@@ -47,7 +47,12 @@ LIMITS: dict[str, tuple[float, float | None]] = {
     "divisor": (1, MAX_DIVISOR),
     "neutral": (0, None),
     "redundancy": (0, MAX_REDUNDANCY),
+    "ahead": (0.0, 1.0),
 }
+#: Seconds a receiver may hold a frame for the picture layer's next video frame (--ahead): at 4 kbit/s
+#: the layer's video frames come every 4-15 frames, at 10 every 2-6; held, the frames between are drawn
+#: from both (codec/render/frame_video.VideoLayer.draw).
+AHEAD = 0.5
 
 
 @dataclass(frozen=True)
@@ -78,7 +83,9 @@ class SendConfig:
     misses it (sender/picture_layer.py; the parameters then aim at :func:`parameter_rate` of it);
     paced_face: the face model carried in the stream goes beside the frames within ``bitrate``, a
     preview first, instead of before the first frame (sender/face_pacing.py; over datagrams round and
-    round until the receiver reports it held).
+    round until the receiver reports it held); ahead: seconds (at most header.MAX_AHEAD frames) the
+    receiver holds a frame between two of the picture layer's video frames for the next one, to draw
+    it from both (0: from the last alone, at once).
     """
 
     level: int | None = None
@@ -99,6 +106,7 @@ class SendConfig:
     picture_layer: bool = True
     quality: int | None = None
     paced_face: bool = False
+    ahead: float = AHEAD
 
     def __post_init__(self) -> None:
         for name, (lo, hi) in LIMITS.items():

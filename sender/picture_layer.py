@@ -174,16 +174,17 @@ class PictureLayer:
         height, width = face.picture.image.shape[:2]
         self.size = (width, height)
         self._view = PictureView(header, face, self.size)
-        self._layer = VideoLayer(self.size)
+        self._layer = VideoLayer(self.size, header.ahead)
         self._frame_bits = bitrate / header.fps
         self._sealed = sealed
         layer = layer_rate(bitrate)
         self._video_size = layer_video_size(bitrate, self.size)
         self._shrink = shrink = choice_shrink(self.size, self._video_size)
         self._look = self._view if shrink == 1 else PictureView(header, face, (width // shrink, height // shrink))
-        #: (frame, parameters) the whole view has not placed yet, placed when :attr:`picture` is read: what
-        #: its carry looks back to is at most HELD frames old, as at the receiver
-        self._unplaced: deque[tuple[int, np.ndarray]] = deque(maxlen=HELD)
+        #: (frame, parameters) of the frames stepped that :meth:`pictures` has not drawn: at most HELD, as
+        #: the receiver holds, and how many it has told the whole view to expect
+        self._waiting: deque[tuple[int, np.ndarray]] = deque(maxlen=HELD)
+        self._told = -1
         video = (1 - BLOCKS_SHARE) * layer  # bit/s
         self._every = max(1, ceil(header.fps * 8 * SMALLEST / video))
         sent = header.fps / self._every  # video packets a second
@@ -217,8 +218,7 @@ class PictureLayer:
         the header's repeats."""
         spent = 8 * stream_size(frame_packets, self._sealed)
         self._saved = min(self._saved + self._blocks_bits, 8.0 * SMALLEST)
-        if self._look is not self._view:
-            self._unplaced.append((seq, params))
+        self._waiting.append((seq, params))
         model = self._look.model_picture(params, seq)  # at the size the choice is made at
         packets: list[bytes] = []
         if self._repeats is not None and self._repeat_bits is None:  # from what the next 2 seconds hold
@@ -267,16 +267,19 @@ class PictureLayer:
         ahead = np.r_[0.0, np.cumsum(ahead)]  # bits of the next 0, 1, ... frames
         return self._window_bits - spent - float(np.max(kept + ahead[::-1]))
 
-    @property
-    def picture(self) -> np.ndarray | None:
-        """What the receiver draws of the last frame stepped (None before the first); read it before the
-        next step."""
-        if self._last is None:
-            return None
-        while self._unplaced:
-            seq, params = self._unplaced.popleft()
-            self._view.place(params, seq)
-        return self._layer.draw(self._last, self._view.placed_picture(), self._view.carry)
+    def pictures(self, final: bool = False) -> list[tuple[int, np.ndarray]]:
+        """(frame, what the receiver draws of it) of the frames stepped whose pictures are known now
+        (:meth:`VideoLayer.ready`; ``final``: every one, the call having ended), in order, each once;
+        ask after every step."""
+        for seq, params in self._waiting:
+            if seq > self._told and self._layer.ahead:
+                self._view.expect(params, seq)
+        self._told = self._last if self._last is not None else -1
+        drawn = []
+        while self._waiting and (final or self._layer.ready(self._waiting[0][0], self._told)):
+            seq, params = self._waiting.popleft()
+            drawn.append((seq, self._layer.draw(seq, self._view.model_picture(params, seq), self._view.carry)))
+        return drawn
 
     def _favour(self) -> np.ndarray:
         """Per block, how many times the video's error counts: MOUTH in the mouth's blocks."""

@@ -20,6 +20,7 @@ from facedeform.common.parameters import BASIS_PARAMS, PLACING_PARAMS, POSE_PARA
 from facedeform.common.stages import Source
 from facedeform.protocol.basis import principal_basis
 from facedeform.protocol.encoder import EAGER_GAP, EAGER_SECONDS
+from facedeform.protocol.header import MAX_AHEAD
 from facedeform.protocol.layouts import shipped_basis
 from facedeform.protocol.rate import sample_bits_per_second
 from facedeform.protocol.report import Report
@@ -72,15 +73,16 @@ def key_seconds(header: Header) -> float:
 def stream_header(names: tuple[str, ...], fps: float, face_id: str, quality: int = DEFAULT_QUALITY,
                   model_size: int = 0, basis: np.ndarray | None = None, divisor: int = 1,
                   size: tuple[int, int] = (0, 0), rule: str = DEFAULT_RULE, keys: float = 1.0,
-                  preview_size: int = 0) -> Header:
+                  preview_size: int = 0, ahead: float = 0.0) -> Header:
     """The header fd-send writes: a keyframe every ``keys`` seconds (of the frames sent: one in
     ``divisor``), and static-frame flags (with the dead zone a still face sends unchanged frames,
     a flag each); ``size``: the source's (width, height) in pixels; ``rule``: the deformation rule
-    fitted to; ``preview_size``: the in-band model's first bytes that are a preview face."""
+    fitted to; ``preview_size``: the in-band model's first bytes that are a preview face; ``ahead``:
+    seconds a frame may wait for the picture layer's next video frame."""
     return Header(fps, names, steps_for(names, quality), face_id, quality=quality,
                   key_interval=max(1, min(255, round(keys * fps / divisor))), divisor=divisor, skip_static=True,
                   model_size=model_size, basis=basis, width=size[0], height=size[1], rule=rule,
-                  preview_size=preview_size)
+                  preview_size=preview_size, ahead=min(MAX_AHEAD, round(ahead * fps)))
 
 
 def sample_basis(names: tuple[str, ...], sample: list[np.ndarray]) -> np.ndarray | None:
@@ -264,7 +266,8 @@ class SendSession:
     def _header(self, quality: int) -> Header:
         return stream_header(self.analyser.names, self.source.fps, self._face_id, quality, len(self._model),
                              self._basis, self.config.divisor, self.source.size, self.config.rule,
-                             DATAGRAM_KEYS if self.config.datagrams else 1.0, len(self._preview))
+                             DATAGRAM_KEYS if self.config.datagrams else 1.0, len(self._preview),
+                             0.0 if self._layer_rate is None else self.config.ahead)
 
     def _configure(self, quality: int) -> None:
         self.header = self._header(quality)

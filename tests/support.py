@@ -40,6 +40,7 @@ from facedeform.protocol.stream import (
     steps_for,
 )
 from facedeform.receiver.cli import main
+from facedeform.receiver.session import ReceiveSession
 from facedeform.sender import picture_layer
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -320,20 +321,36 @@ def a_picture_with_shut_eyes():
 @contextmanager
 def sender_pictures():
     """The sender's own picture of every frame (what its picture layer reconstructs), as a list
-    filled while the context lasts."""
+    filled while the context lasts, each as soon as the sender knows it (PictureLayer.pictures)."""
     pictures: list[np.ndarray] = []
-    original = picture_layer.PictureLayer.step
+    step, close = picture_layer.PictureLayer.step, picture_layer.PictureLayer.close
 
-    def step(self, *args, **kwargs):
-        out = original(self, *args, **kwargs)
-        pictures.append(self.picture.copy())
+    def stepped(self, *args, **kwargs):
+        out = step(self, *args, **kwargs)
+        pictures.extend(image.copy() for _, image in self.pictures())
         return out
 
-    picture_layer.PictureLayer.step = step
+    def closed(self):
+        pictures.extend(image.copy() for _, image in self.pictures(final=True))
+        close(self)
+
+    picture_layer.PictureLayer.step, picture_layer.PictureLayer.close = stepped, closed
     try:
         yield pictures
     finally:
-        picture_layer.PictureLayer.step = original
+        picture_layer.PictureLayer.step, picture_layer.PictureLayer.close = step, close
+
+
+def received(events: list, face) -> list[np.ndarray]:
+    """What fd-recv draws of a stream's decoded ``events`` with ``face`` (a BaseFace), in frame order:
+    its session's pictures, each frame drawn once the picture layer lets it (header.ahead)."""
+    from facedeform.api import _Collect
+
+    pictures: list[np.ndarray] = []
+    session = ReceiveSession(lambda fps, size: [_Collect(pictures)], None, face, warn=lambda line: None)
+    session.handle(events, 0.0)
+    session.close()
+    return pictures
 
 
 def datagrams_per_frame(session, receive=lambda datagram: None) -> np.ndarray:

@@ -15,7 +15,7 @@ from facedeform.common.parameters import LAYOUTS as NAMED
 from facedeform.common.parameters import PAPER_PARAMS
 from facedeform.protocol.basis import SCALE
 from facedeform.protocol.framing import END, HEADER, SYNC, Delta, build, read_varint, varint
-from facedeform.protocol.header import MAX_MODEL, VERSION, encode_header, parse_header
+from facedeform.protocol.header import MAX_AHEAD, MAX_MODEL, VERSION, encode_header, parse_header
 from facedeform.protocol.layouts import shipped, shipped_basis
 from facedeform.protocol.quantise import QUALITIES, dequantise, hold_or_round, quantise
 from facedeform.protocol.stream import (
@@ -615,6 +615,21 @@ def test_frame_size_and_rule_travel_in_the_header(width, height, rule):
     assert header(rule="paper") != header()
 
 
+def test_how_long_a_picture_waits_for_the_next_video_frame_travels_in_the_header():
+    """``ahead`` (frames) costs a byte where it is set and none where not; a byte of 0 or past MAX_AHEAD
+    behind its flag is refused."""
+    h = header(ahead=12)
+    body, plain = encode_header(h), encode_header(header())
+    assert parse_header(body).ahead == 12 and len(body) == len(plain) + 1
+    at = next(i for i in range(4, len(plain)) if body[i] != plain[i])  # past the flags, the byte added
+    assert body[at] == 12 and body[:3] + body[4:at] + body[at + 1:] == plain[:3] + plain[4:]
+    for value, message in ((0, "wait 0 frames"), (MAX_AHEAD + 1, f"wait {MAX_AHEAD + 1} frames")):
+        with pytest.raises(BitstreamError, match=message):
+            StreamDecoder().feed(header_bytes_with(h, at, bytes([value])))
+    with pytest.raises(ValueError, match="out of range"):
+        header(ahead=MAX_AHEAD + 1)
+
+
 @pytest.mark.parametrize("change", [{"width": MAX_SIDE + 1}, {"height": -1}, {"rule": "other"},
                                     {"steps": steps_for(PAPER_PARAMS) * 1e306}, {"steps": -steps_for(PAPER_PARAMS)}])
 def test_header_fields_out_of_range_are_a_callers_mistake(change):
@@ -639,7 +654,7 @@ def header_bytes_with(h: Header, at: int, value: bytes, length: int = 1) -> byte
 
 @pytest.mark.parametrize("patch, message", [
     (lambda h: header_bytes_with(h, 7, b"\x02"), "unknown deformation rule 2"),
-    (lambda h: header_bytes_with(h, 3, b"\x40"), "unknown header flags"),
+    (lambda h: header_bytes_with(h, 3, b"\x80"), "unknown header flags"),
     (lambda h: header_bytes_with(h, 3, b"\x14"), "unknown header flags"),  # a held layout's basis written too
     (lambda h: header_bytes_with(header(NAMED["mouth"]), 3, b"\x10"),  # its count of 39 names read as an index
      "layout 39, which this decoder does not hold"),
