@@ -148,6 +148,7 @@ def test_without_its_picture_layer_a_stream_decodes_to_the_model_only_picture(fa
     expected = [view.render(p, i).copy() for i, p in enumerate(params)]
     for got, want in zip(facedeform.decode(stripped, face), expected, strict=True):
         np.testing.assert_array_equal(got, want)
+    assert events[0].ahead and max(_received_late([stripped], face)[3]) == 0  # no frame waits for a video frame
 
 
 def test_the_rate_is_kept_within_a_tenth_over_any_two_seconds(call):

@@ -652,10 +652,19 @@ class VideoLayer:
 
     def ready(self, seq: int, latest: int) -> bool:
         """Whether frame ``seq`` can be drawn as it will stay once the payloads of the frames up to
-        ``latest`` are decoded: it waits for none (no ``ahead``), or the frame ``ahead`` after it is
-        known, or the first payload after it other than blocks only (a video frame, or a loss)."""
-        return latest >= seq + self.ahead or any(
-            state[0] > seq and (state[1] is None or state[3] == state[0]) for state in self._states)
+        ``latest`` are decoded: it waits for none (no ``ahead``, or no video frame to draw it from:
+        before the first key, after a loss, a receiver given no picture packets), or the frame
+        ``ahead`` after it is known, or the first payload after it other than blocks only (a video
+        frame, or a loss)."""
+        if latest >= seq + self.ahead:
+            return True
+        current = None
+        for state in self._states:
+            if state[0] <= seq:
+                current = state
+            elif state[1] is None or state[3] == state[0]:
+                return True
+        return current is None or current[1] is None
 
     def draw(self, seq: int, model: np.ndarray, carry: Callable[[np.ndarray, int], np.ndarray] | None = None,
              small: np.ndarray | None = None) -> np.ndarray:
